@@ -1,0 +1,39 @@
+//! Residue generation for QUADFormer-rs: the EKF layer (paper sec:residue_generator, alg:alg1).
+//!
+//! This crate owns a generic extended Kalman filter over nalgebra, the Model I (15 states) and
+//! Model II (21 states, stochastic keyframe cloning) filters built on `uav-dynamics`, time
+//! alignment of multi-rate sensor streams and the geodetic → local ENU transform, the
+//! [`ResidueSeries`] type (`t`, channels, `r_k`, `S_k`, NIS), and the [`Detector`]/[`Fit`]
+//! traits that every residue consumer implements. It knows nothing about attacks or learning.
+//!
+//! ```
+//! use ekf_residue::{ResidueSeries, Confusion};
+//! use nalgebra::DMatrix;
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let series = ResidueSeries::new(
+//!     vec![0.0, 0.1],
+//!     vec!["gps_x".into()],
+//!     vec![vec![0.5], vec![3.0]],
+//!     vec![DMatrix::from_element(1, 1, 0.25); 2],
+//! )?;
+//! assert_eq!(series.nis(), &[1.0, 36.0]);
+//! let alarms: Vec<bool> = series.nis().iter().map(|z| *z > 6.635).collect();
+//! assert_eq!(Confusion::count(&alarms, &[false, true]).f1(), 1.0);
+//! # Ok(())
+//! # }
+//! ```
+#![warn(missing_docs)]
+
+pub mod align;
+pub mod detector;
+pub mod ekf;
+pub mod error;
+pub mod geodetic;
+pub mod model1_filter;
+pub mod model2_filter;
+pub mod residues;
+pub mod series;
+
+pub use detector::{Confusion, Detector, Fit, OnlineDecision, OnlineDetector, WindowedOnline, best_f1_threshold, check_channels};
+pub use error::{DetectError, ResidueError};
+pub use series::{LabelledResidues, LabelledSeries, ResidueSeries, ResidueStep};

@@ -1,0 +1,1 @@
+//! File formats: CSV sensor streams, truth, labels and residue series; TOML configs; atomic writes.

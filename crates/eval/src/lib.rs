@@ -1,0 +1,13 @@
+//! Evaluation for QUADFormer-rs: the top library layer.
+//!
+//! This crate owns dataset building (simulate → attack → EKF → labelled residues, split by
+//! flight), metrics, the experiment matrix, tables, plots and the `quadformer` command-line
+//! interface. It may use every crate below it.
+#![warn(missing_docs)]
+
+pub mod dataset;
+pub mod io;
+pub mod metrics;
+pub mod plot;
+pub mod runner;
+pub mod table;

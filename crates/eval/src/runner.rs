@@ -1,0 +1,1 @@
+//! The experiment matrix runner: cells x methods x seeds, cached and resumable.

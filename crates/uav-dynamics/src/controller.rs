@@ -1,0 +1,1 @@
+//! Position controller that flies on a caller-supplied estimate.

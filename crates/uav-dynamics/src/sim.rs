@@ -1,0 +1,1 @@
+//! Flight simulator: true quadrotor states and multi-rate sensor streams.

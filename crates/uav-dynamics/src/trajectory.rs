@@ -1,0 +1,1 @@
+//! Reference trajectories: eight, UST letters, diagonal, square, formation square and random smooth routes.

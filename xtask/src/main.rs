@@ -1,0 +1,2 @@
+//! Developer and user tasks for QUADFormer-rs (`cargo xtask <task>`).
+fn main() {}
