@@ -1,0 +1,160 @@
+//! A flight directory: the sensor streams of one flight as CSV files, plus optional ground
+//! truth, attack offsets/labels and the config that produced it (docs/data-format.md).
+//!
+//! ```text
+//! DIR/imu.csv       required  IMU samples (inputs of eq:model1f)
+//! DIR/gps.csv       optional  GPS fixes in local ENU, as received (attacked if attack.csv says so)
+//! DIR/attitude.csv  optional  attitude reference (Model I measures it, eq:model1g)
+//! DIR/vo.csv        optional  visual-odometry relative poses (Model II, eq:model2g)
+//! DIR/truth.csv     optional  true state per IMU step
+//! DIR/attack.csv    optional  injected GPS offsets and labels, one row per GPS fix
+//! DIR/config.toml   optional  the configuration `quadformer simulate` used
+//! ```
+//!
+//! Which streams a model needs is checked by the consumer (the `residues` command), so that a
+//! user's own log with only the files one model needs is accepted.
+
+use std::path::Path;
+
+use uav_dynamics::{SensorStreams, TruthSample};
+
+use crate::io::atomic::{Overwrite, write_dir_atomic, write_text_atomic};
+use crate::io::attack::{AttackRecord, TIME_MATCH_TOL_S, read_attack, write_attack};
+use crate::io::error::{IoError, Result};
+use crate::io::streams::{
+    read_attitude, read_gps, read_imu, read_truth, read_vo, require_file, write_attitude, write_gps, write_imu,
+    write_truth, write_vo,
+};
+
+/// File name of the IMU stream.
+pub const IMU_FILE: &str = "imu.csv";
+/// File name of the GPS stream.
+pub const GPS_FILE: &str = "gps.csv";
+/// File name of the attitude stream.
+pub const ATTITUDE_FILE: &str = "attitude.csv";
+/// File name of the visual-odometry stream.
+pub const VO_FILE: &str = "vo.csv";
+/// File name of the ground truth.
+pub const TRUTH_FILE: &str = "truth.csv";
+/// File name of the attack offsets and labels.
+pub const ATTACK_FILE: &str = "attack.csv";
+/// File name of the configuration a simulated flight was made with.
+pub const CONFIG_FILE: &str = "config.toml";
+
+/// The contents of a flight directory.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FlightDir {
+    /// Sensor streams; a stream whose file is absent is empty.
+    pub streams: SensorStreams,
+    /// Ground truth, if `truth.csv` exists.
+    pub truth: Option<Vec<TruthSample>>,
+    /// Attack offsets and labels, if `attack.csv` exists (one per GPS fix).
+    pub attack: Option<Vec<AttackRecord>>,
+    /// Text of `config.toml`, if it exists.
+    pub config_toml: Option<String>,
+}
+
+/// Which optional files of a flight directory are present.
+fn present(dir: &Path, name: &str) -> Option<std::path::PathBuf> {
+    let p = dir.join(name);
+    p.is_file().then_some(p)
+}
+
+/// Reads a flight directory: `imu.csv` is required, every other file is optional.
+///
+/// # Errors
+/// [`IoError::MissingFile`] if `dir` has no `imu.csv`; any CSV error of the files present
+/// (naming file, line and column); [`IoError::Inconsistent`] if `attack.csv` does not have
+/// exactly one row per GPS fix at the same times.
+pub fn read_flight_dir(dir: &Path) -> Result<FlightDir> {
+    if !dir.is_dir() {
+        return Err(IoError::MissingFile { path: dir.to_owned(), why: "a flight directory is required".into() });
+    }
+    let imu_path = dir.join(IMU_FILE);
+    require_file(&imu_path, "every flight directory needs its IMU stream")?;
+    let mut streams = SensorStreams { imu: read_imu(&imu_path)?, ..SensorStreams::default() };
+    if let Some(p) = present(dir, GPS_FILE) {
+        streams.gps = read_gps(&p)?;
+    }
+    if let Some(p) = present(dir, ATTITUDE_FILE) {
+        streams.attitude = read_attitude(&p)?;
+    }
+    if let Some(p) = present(dir, VO_FILE) {
+        streams.vo = read_vo(&p)?;
+    }
+    let truth = present(dir, TRUTH_FILE).map(|p| read_truth(&p)).transpose()?;
+    let attack = match present(dir, ATTACK_FILE) {
+        Some(p) => {
+            let records = read_attack(&p)?;
+            check_attack_matches_gps(&p, &records, &streams)?;
+            Some(records)
+        }
+        None => None,
+    };
+    let config_toml = match present(dir, CONFIG_FILE) {
+        Some(p) => Some(std::fs::read_to_string(&p).map_err(|source| IoError::Fs { path: p, op: "read", source })?),
+        None => None,
+    };
+    Ok(FlightDir { streams, truth, attack, config_toml })
+}
+
+fn check_attack_matches_gps(path: &Path, attack: &[AttackRecord], streams: &SensorStreams) -> Result<()> {
+    if attack.len() != streams.gps.len() {
+        return Err(IoError::Inconsistent {
+            path: path.to_owned(),
+            msg: format!(
+                "{} rows, but {GPS_FILE} has {} fixes (one row per fix is required)",
+                attack.len(),
+                streams.gps.len()
+            ),
+        });
+    }
+    for (k, (a, g)) in attack.iter().zip(&streams.gps).enumerate() {
+        if (a.t - g.t).abs() > TIME_MATCH_TOL_S {
+            return Err(IoError::Inconsistent {
+                path: path.to_owned(),
+                msg: format!(
+                    "line {}: time {:?} s does not match {GPS_FILE} line {} time {:?} s",
+                    k + 2,
+                    a.t,
+                    k + 2,
+                    g.t
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Writes a flight directory atomically: all files go to a temporary sibling directory, which
+/// is renamed to `dir` at the end. Empty streams are not written; truth, attack and config
+/// only when present.
+///
+/// # Errors
+/// [`IoError::Inconsistent`] if `dir` exists, is not empty and `overwrite` is
+/// [`Overwrite::Refuse`]; any write error. On error `dir` is unchanged.
+pub fn write_flight_dir(dir: &Path, flight: &FlightDir, overwrite: Overwrite) -> Result<()> {
+    write_dir_atomic(dir, overwrite, |tmp| {
+        let s = &flight.streams;
+        write_imu(&tmp.join(IMU_FILE), &s.imu)?;
+        if !s.gps.is_empty() {
+            write_gps(&tmp.join(GPS_FILE), &s.gps)?;
+        }
+        if !s.attitude.is_empty() {
+            write_attitude(&tmp.join(ATTITUDE_FILE), &s.attitude)?;
+        }
+        if !s.vo.is_empty() {
+            write_vo(&tmp.join(VO_FILE), &s.vo)?;
+        }
+        if let Some(truth) = &flight.truth {
+            write_truth(&tmp.join(TRUTH_FILE), truth)?;
+        }
+        if let Some(attack) = &flight.attack {
+            write_attack(&tmp.join(ATTACK_FILE), attack)?;
+        }
+        if let Some(cfg) = &flight.config_toml {
+            write_text_atomic(&tmp.join(CONFIG_FILE), cfg)?;
+        }
+        Ok(())
+    })
+}

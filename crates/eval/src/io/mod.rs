@@ -1,0 +1,45 @@
+//! File formats of QUADFormer-rs (docs/data-format.md): CSV sensor streams, ground truth,
+//! attack offsets/labels and residue series (paper alg:alg1 outputs), flight directories, and
+//! atomic output.
+//!
+//! Every CSV file has a header; time stamps are seconds and increase strictly; frames are ENU
+//! (world) and FLU (body); angles are radians (ZYX Euler). Readers find columns by name and
+//! report bad input with file, line and column ([`IoError`]); writers print `f64` in shortest
+//! round-trip form, so write → read is bit-exact, and write to a temporary file (or directory)
+//! that is renamed into place only when complete.
+//!
+//! ```
+//! use eval::io::{read_gps, write_gps};
+//! use uav_dynamics::GpsSample;
+//! use nalgebra::Vector3;
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let dir = std::env::temp_dir().join(format!("qf-io-doc-{}", std::process::id()));
+//! std::fs::create_dir_all(&dir)?;
+//! let gps = vec![GpsSample { t: 0.1, p: Vector3::new(1.0, 2.0, 0.1 + 0.2) }];
+//! write_gps(&dir.join("gps.csv"), &gps)?;
+//! assert_eq!(read_gps(&dir.join("gps.csv"))?, gps);
+//! # std::fs::remove_dir_all(&dir)?;
+//! # Ok(())
+//! # }
+//! ```
+
+mod atomic;
+mod attack;
+mod error;
+mod flight_dir;
+mod residues;
+mod streams;
+mod table;
+
+pub use atomic::{Overwrite, write_dir_atomic, write_file_atomic, write_text_atomic};
+pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, labels_at, read_attack, write_attack};
+pub use error::{IoError, Result};
+pub use flight_dir::{
+    ATTACK_FILE, ATTITUDE_FILE, CONFIG_FILE, FlightDir, GPS_FILE, IMU_FILE, TRUTH_FILE, VO_FILE, read_flight_dir,
+    write_flight_dir,
+};
+pub use residues::{CovarianceLayout, r_column, read_residues, s_column, write_residues};
+pub use streams::{
+    ATTITUDE_COLUMNS, GPS_COLUMNS, IMU_COLUMNS, TRUTH_COLUMNS, VO_COLUMNS, read_attitude, read_gps, read_imu,
+    read_truth, read_vo, write_attitude, write_gps, write_imu, write_truth, write_vo,
+};

@@ -1,0 +1,205 @@
+//! CSV formats of the sensor streams and the ground truth (docs/data-format.md).
+//!
+//! Frames and units follow DESIGN.md "Conventions": world ENU (z up), body FLU, metres,
+//! radians (ZYX Euler `[roll φ, pitch θ, yaw ψ]`), seconds from the start of the flight.
+//! Every file has a header; time stamps must increase strictly.
+//!
+//! | file | columns |
+//! |---|---|
+//! | `imu.csv` | `t, gyro_x, gyro_y, gyro_z` (rad/s, body), `accel_x, accel_y, accel_z` (m/s², body) |
+//! | `gps.csv` | `t, p_x, p_y, p_z` (m, local ENU) |
+//! | `attitude.csv` | `t, roll, pitch, yaw` (rad) |
+//! | `vo.csv` | `t, keyframe, p_rel_x, p_rel_y, p_rel_z` (m), `q_rel_roll, q_rel_pitch, q_rel_yaw` (rad) |
+//! | `truth.csv` | `t, p_x.., roll.., v_x.., b_g_x.., b_a_x..` (Model I state, eq:model1state) |
+
+use std::path::Path;
+
+use uav_dynamics::{AttitudeSample, GpsSample, ImuSample, TruthSample, VoSample};
+
+use crate::io::atomic::write_file_atomic;
+use crate::io::error::{IoError, Result};
+use crate::io::table::{CsvIn, CsvOut, Row};
+
+/// Columns of `imu.csv`.
+pub const IMU_COLUMNS: [&str; 7] = ["t", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"];
+/// Columns of `gps.csv`.
+pub const GPS_COLUMNS: [&str; 4] = ["t", "p_x", "p_y", "p_z"];
+/// Columns of `attitude.csv`.
+pub const ATTITUDE_COLUMNS: [&str; 4] = ["t", "roll", "pitch", "yaw"];
+/// Columns of `vo.csv`.
+pub const VO_COLUMNS: [&str; 8] =
+    ["t", "keyframe", "p_rel_x", "p_rel_y", "p_rel_z", "q_rel_roll", "q_rel_pitch", "q_rel_yaw"];
+/// Columns of `truth.csv`.
+pub const TRUTH_COLUMNS: [&str; 16] = [
+    "t", "p_x", "p_y", "p_z", "roll", "pitch", "yaw", "v_x", "v_y", "v_z", "b_g_x", "b_g_y", "b_g_z", "b_a_x", "b_a_y",
+    "b_a_z",
+];
+
+/// A record type with a CSV layout: a fixed header and a row codec.
+pub(crate) trait CsvRecord: Sized {
+    /// Header names, time first.
+    const COLUMNS: &'static [&'static str];
+    /// Parses one row; `cols[i]` is the file's index of `COLUMNS[i]`; `t` is already parsed.
+    fn parse(input: &CsvIn, row: &Row, cols: &[usize], t: f64) -> Result<Self>;
+    /// Appends one row (all columns in `COLUMNS` order).
+    fn emit(&self, out: &mut CsvOut<'_>) -> Result<()>;
+}
+
+impl CsvRecord for ImuSample {
+    const COLUMNS: &'static [&'static str] = &IMU_COLUMNS;
+    fn parse(input: &CsvIn, row: &Row, cols: &[usize], t: f64) -> Result<Self> {
+        Ok(Self { t, gyro: input.vec3(row, &cols[1..4])?, accel: input.vec3(row, &cols[4..7])? })
+    }
+    fn emit(&self, out: &mut CsvOut<'_>) -> Result<()> {
+        out.f64(self.t)?;
+        out.vec3(&self.gyro)?;
+        out.vec3(&self.accel)
+    }
+}
+
+impl CsvRecord for GpsSample {
+    const COLUMNS: &'static [&'static str] = &GPS_COLUMNS;
+    fn parse(input: &CsvIn, row: &Row, cols: &[usize], t: f64) -> Result<Self> {
+        Ok(Self { t, p: input.vec3(row, &cols[1..4])? })
+    }
+    fn emit(&self, out: &mut CsvOut<'_>) -> Result<()> {
+        out.f64(self.t)?;
+        out.vec3(&self.p)
+    }
+}
+
+impl CsvRecord for AttitudeSample {
+    const COLUMNS: &'static [&'static str] = &ATTITUDE_COLUMNS;
+    fn parse(input: &CsvIn, row: &Row, cols: &[usize], t: f64) -> Result<Self> {
+        Ok(Self { t, q: input.vec3(row, &cols[1..4])? })
+    }
+    fn emit(&self, out: &mut CsvOut<'_>) -> Result<()> {
+        out.f64(self.t)?;
+        out.vec3(&self.q)
+    }
+}
+
+impl CsvRecord for VoSample {
+    const COLUMNS: &'static [&'static str] = &VO_COLUMNS;
+    fn parse(input: &CsvIn, row: &Row, cols: &[usize], t: f64) -> Result<Self> {
+        Ok(Self {
+            t,
+            keyframe: input.u32(row, cols[1])?,
+            p_rel: input.vec3(row, &cols[2..5])?,
+            q_rel: input.vec3(row, &cols[5..8])?,
+        })
+    }
+    fn emit(&self, out: &mut CsvOut<'_>) -> Result<()> {
+        out.f64(self.t)?;
+        out.u64(u64::from(self.keyframe));
+        out.vec3(&self.p_rel)?;
+        out.vec3(&self.q_rel)
+    }
+}
+
+impl CsvRecord for TruthSample {
+    const COLUMNS: &'static [&'static str] = &TRUTH_COLUMNS;
+    fn parse(input: &CsvIn, row: &Row, cols: &[usize], t: f64) -> Result<Self> {
+        Ok(Self {
+            t,
+            p: input.vec3(row, &cols[1..4])?,
+            q: input.vec3(row, &cols[4..7])?,
+            v: input.vec3(row, &cols[7..10])?,
+            b_g: input.vec3(row, &cols[10..13])?,
+            b_a: input.vec3(row, &cols[13..16])?,
+        })
+    }
+    fn emit(&self, out: &mut CsvOut<'_>) -> Result<()> {
+        out.f64(self.t)?;
+        for v in [&self.p, &self.q, &self.v, &self.b_g, &self.b_a] {
+            out.vec3(v)?;
+        }
+        Ok(())
+    }
+}
+
+/// Reads a CSV file of records `R`: columns found by name (any order, extra columns ignored),
+/// every value finite, time stamps strictly increasing; for `vo.csv` keyframe indices must not
+/// decrease.
+///
+/// # Errors
+/// [`IoError`] naming the file, and the line and column where it applies: missing file or
+/// column, wrong number of fields, a value that is not a number or not finite, a time stamp
+/// not after the previous one, a decreasing keyframe index.
+pub(crate) fn read_records<R: CsvRecord>(path: &Path) -> Result<Vec<R>> {
+    let mut input = CsvIn::open(path)?;
+    let cols = input.columns(R::COLUMNS)?;
+    let keyframe_col = input.optional_column("keyframe").filter(|_| R::COLUMNS.contains(&"keyframe"));
+    let mut out: Vec<R> = Vec::new();
+    let mut prev_t = None;
+    let mut prev_keyframe: Option<u32> = None;
+    while let Some(row) = input.next_row()? {
+        let t = input.time(&row, cols[0], prev_t)?;
+        if let Some(kc) = keyframe_col {
+            let k = input.u32(&row, kc)?;
+            if let Some(k_prev) = prev_keyframe {
+                if k < k_prev {
+                    return Err(input.field_error(
+                        &row,
+                        kc,
+                        format!("keyframe index must not decrease: {k} after {k_prev}"),
+                    ));
+                }
+            }
+            prev_keyframe = Some(k);
+        }
+        out.push(R::parse(&input, &row, &cols, t)?);
+        prev_t = Some(t);
+    }
+    Ok(out)
+}
+
+/// Writes records `R` to `path` atomically (header, one row per record, `f64` in shortest
+/// round-trip form).
+///
+/// # Errors
+/// [`IoError::Unwritable`] for a non-finite value (nothing is written); [`IoError::Fs`] on
+/// file-system failure.
+pub(crate) fn write_records<R: CsvRecord>(path: &Path, records: &[R]) -> Result<()> {
+    write_file_atomic(path, |file| {
+        let mut out = CsvOut::new(path, file, R::COLUMNS.iter().map(|s| (*s).to_owned()).collect())?;
+        for r in records {
+            r.emit(&mut out)?;
+            out.end_row()?;
+        }
+        out.finish()
+    })
+}
+
+/// [`IoError::MissingFile`] unless `path` is a file.
+pub(crate) fn require_file(path: &Path, why: &str) -> Result<()> {
+    if path.is_file() { Ok(()) } else { Err(IoError::MissingFile { path: path.to_owned(), why: why.to_owned() }) }
+}
+
+macro_rules! stream_io {
+    ($read:ident, $write:ident, $ty:ty, $file:literal) => {
+        #[doc = concat!("Reads `", $file, "` (see the module table for its columns).")]
+        ///
+        /// # Errors
+        /// [`IoError`] naming the file, line and column of the first bad value, missing column,
+        /// wrong field count or non-increasing time stamp.
+        pub fn $read(path: &Path) -> Result<Vec<$ty>> {
+            read_records(path)
+        }
+
+        #[doc = concat!("Writes `", $file, "` atomically (temporary file, then rename).")]
+        ///
+        /// # Errors
+        /// [`IoError::Unwritable`] for a non-finite value, [`IoError::Fs`] on file-system failure;
+        /// nothing is left at `path` on error.
+        pub fn $write(path: &Path, samples: &[$ty]) -> Result<()> {
+            write_records(path, samples)
+        }
+    };
+}
+
+stream_io!(read_imu, write_imu, ImuSample, "imu.csv");
+stream_io!(read_gps, write_gps, GpsSample, "gps.csv");
+stream_io!(read_attitude, write_attitude, AttitudeSample, "attitude.csv");
+stream_io!(read_vo, write_vo, VoSample, "vo.csv");
+stream_io!(read_truth, write_truth, TruthSample, "truth.csv");
