@@ -105,3 +105,111 @@ pub enum DetectError {
     #[error(transparent)]
     Residue(#[from] ResidueError),
 }
+
+/// A filter, the time alignment or a coordinate transform failed.
+///
+/// Input problems name the stream (`"imu"`, `"gps"`, `"attitude"`, `"vo"`), the sample index in
+/// that stream and its time; numerical problems name the filter time `t` in seconds.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum FilterError {
+    /// A sensor sample holds NaN or an infinite value.
+    #[error("{stream} sample {idx} (t = {t} s): non-finite {field}")]
+    NonFiniteInput {
+        /// Stream name.
+        stream: &'static str,
+        /// Index in the stream.
+        idx: usize,
+        /// Sample time in seconds (may itself be the non-finite value).
+        t: f64,
+        /// Which field.
+        field: &'static str,
+    },
+    /// Time stamps of one stream are not strictly increasing.
+    #[error("{stream} sample {idx}: time {t} s is not after the previous {t_prev} s")]
+    Unordered {
+        /// Stream name.
+        stream: &'static str,
+        /// Index in the stream.
+        idx: usize,
+        /// Previous time stamp.
+        t_prev: f64,
+        /// This time stamp.
+        t: f64,
+    },
+    /// A measurement arrives before the filter's current time (online API).
+    #[error("{stream} sample at t = {t} s is before the filter time {t_filter} s")]
+    InThePast {
+        /// Stream name.
+        stream: &'static str,
+        /// Sample time.
+        t: f64,
+        /// Current filter time.
+        t_filter: f64,
+    },
+    /// A vector or matrix has the wrong size.
+    #[error("wrong dimension of {what}: expected {expected}, got {got}")]
+    Dim {
+        /// What was measured.
+        what: &'static str,
+        /// Expected size.
+        expected: usize,
+        /// Actual size.
+        got: usize,
+    },
+    /// An innovation covariance (or the initial `P`) is not symmetric positive definite.
+    #[error("t = {t} s: {what} is not positive definite")]
+    NotPositiveDefinite {
+        /// Filter time in seconds.
+        t: f64,
+        /// Which matrix.
+        what: &'static str,
+    },
+    /// The state or covariance became NaN or infinite.
+    #[error("t = {t} s: non-finite {what}")]
+    NonFiniteState {
+        /// Filter time in seconds.
+        t: f64,
+        /// Which quantity.
+        what: &'static str,
+    },
+    /// The filter diverged (see `ekf::DivergenceGuard`).
+    #[error("t = {t} s: filter diverged: {reason}")]
+    Diverged {
+        /// Filter time in seconds.
+        t: f64,
+        /// Which criterion fired, with its values.
+        reason: String,
+    },
+    /// The estimated pitch reached ±90°, where ZYX Euler rates are undefined.
+    #[error("t = {t} s: gimbal lock (pitch at ±90°)")]
+    GimbalLock {
+        /// Filter time in seconds.
+        t: f64,
+    },
+    /// A configuration value is invalid.
+    #[error("invalid filter config field `{field}`: {msg}")]
+    Config {
+        /// Field name.
+        field: &'static str,
+        /// What is wrong.
+        msg: String,
+    },
+    /// The streams do not hold what the chosen model needs.
+    #[error("insufficient data: {msg}")]
+    NoData {
+        /// What is missing.
+        msg: String,
+    },
+    /// A geodetic coordinate is out of range.
+    #[error("invalid geodetic coordinate {what} = {value}")]
+    Geodetic {
+        /// Which coordinate.
+        what: &'static str,
+        /// Its value.
+        value: f64,
+    },
+    /// Building the residue series failed.
+    #[error(transparent)]
+    Residue(#[from] ResidueError),
+}

@@ -35,5 +35,5 @@ pub mod residues;
 pub mod series;
 
 pub use detector::{Confusion, Detector, Fit, OnlineDecision, OnlineDetector, WindowedOnline, best_f1_threshold, check_channels};
-pub use error::{DetectError, ResidueError};
+pub use error::{DetectError, FilterError, ResidueError};
 pub use series::{LabelledResidues, LabelledSeries, ResidueSeries, ResidueStep};
