@@ -1,0 +1,545 @@
+//! The QUADFormer network (paper sec:attack_detector): UAV Attack Attention with Temporal
+//! Proximity Concentration (eq:TPC) and Dynamic Context Mapping (eq:first_layer_attention,
+//! eq:cross_layer_attention), the reconstruction and classification heads, the
+//! Temporal-Contextual Disparity (TCD, Jensen–Shannon) and the min-max losses.
+//!
+//! Shapes: input `x` is `b × l × m` (normalised residues, [`crate::window`]); hidden states are
+//! kept flat as `(b·l) × d_model`; attention maps `T` and `C` are `b × heads × l × l`; TCD,
+//! logits and per-step scores are `b × l`.
+//!
+//! Layer `h` (post-norm, as the paper's `Z^{h+1} = Norm(Attn(R^h) + R^h)`,
+//! `R^{h+1} = Norm(FF(Z^{h+1}) + Z^{h+1})`):
+//! `Q = R W_Q`, `K = R W_K`, `V = R W_V`; `C¹ = softmax(Q¹K¹ᵀ/√d)`, `Cʰ = softmax(QʰKʰ⁻¹ᵀ/√d)`
+//! for `h > 1` (DCM; switchable off = own keys); `T_{ij} = exp(−γ_i |j−i|^p) / Σ_k …` with a
+//! learnable width `γ` per layer, head and position (TPC; switchable off = the Anomaly
+//! Transformer's Gaussian prior with an input-dependent width). The hand-written layer norm and
+//! `candle_nn::ops::softmax` keep gradients flowing (candle's fused `LayerNorm` and
+//! `softmax_last_dim` have no backward, shared/reference/rust-stack.md §4). The exponent of the
+//! prior is clamped at [`PRIOR_EXP_FLOOR`] so that far-apart steps never produce subnormal
+//! results (slow on this CPU) while their weight stays negligible.
+//!
+//! Min-max with stop-gradient (Anomaly Transformer `solver.py`): the min phase uses
+//! `TCD(T, sg(C))`, so its discrepancy term only moves the prior (`γ`); the max phase uses
+//! `TCD(sg(T), C)`, so its discrepancy term only moves the attention (`W_Q`, `W_K`, embeddings).
+
+use candle_core::{D, DType, Device, Module, Tensor};
+use candle_nn::{Init, Linear, VarBuilder, VarMap};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{ModelError, Result};
+use crate::init::init_vars_seeded;
+use crate::window::Batch;
+
+/// Lower clamp of the prior's exponent: `exp(−50) ≈ 2e−22` is still a normal `f32`.
+pub const PRIOR_EXP_FLOOR: f64 = -50.0;
+/// Additive guard of the logarithms in the Jensen–Shannon divergence.
+const JS_EPS: f64 = 1e-8;
+/// Layer-norm variance guard (PyTorch default).
+const LN_EPS: f64 = 1e-5;
+
+/// Which prior association the attention is compared with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Prior {
+    /// Temporal Proximity Concentration, eq:TPC (the paper).
+    Tpc,
+    /// Anomaly Transformer's Gaussian kernel with width from `Linear(d_model, heads)` of the
+    /// layer input (ablation "TPC off").
+    Gaussian,
+}
+
+/// Architecture of the network.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NetConfig {
+    /// Hidden size `d_model`. Default 64 (docs/decisions/040-quadformer-architecture.md; the
+    /// paper gives no value).
+    pub d_model: usize,
+    /// Attention heads. Default 1: the paper's equations are single-head with `√d_model`
+    /// scaling (eq:first_layer_attention).
+    pub n_heads: usize,
+    /// Number of layers `H`. Default 3 (Anomaly Transformer `e_layers`).
+    pub n_layers: usize,
+    /// Feed-forward width. Default 128 (2 × `d_model`; decision 040).
+    pub d_ff: usize,
+    /// Hidden width of the classification head. Default 32 (decision 040).
+    pub d_class: usize,
+    /// TPC distance exponent `p` (eq:TPC). Default 2 (issue 4).
+    pub p: f64,
+    /// Initial TPC width `γ`. Default 0.1: with `p = 2` a Gaussian of about 2.2 steps standard
+    /// deviation, the order of the Anomaly Transformer's initial width (decision 040).
+    pub gamma_init: f64,
+    /// The prior association; [`Prior::Gaussian`] is the "TPC off" ablation. Default TPC.
+    pub prior: Prior,
+    /// Dynamic Context Mapping (cross-layer keys, eq:cross_layer_attention); `false` = every
+    /// layer uses its own keys (ablation "DCM off"). Default true.
+    pub dcm: bool,
+}
+
+impl Default for NetConfig {
+    fn default() -> Self {
+        Self { d_model: 64, n_heads: 1, n_layers: 3, d_ff: 128, d_class: 32, p: 2.0, gamma_init: 0.1, prior: Prior::Tpc, dcm: true }
+    }
+}
+
+impl NetConfig {
+    /// Checks sizes and ranges.
+    ///
+    /// # Errors
+    /// [`ModelError::Config`] naming the field.
+    pub fn check(&self) -> Result<()> {
+        let bad = |field: &'static str, msg: String| Err(ModelError::Config { field, msg });
+        if self.d_model == 0 || self.n_heads == 0 || self.d_model % self.n_heads != 0 {
+            return bad("net.d_model", format!("{} must be a positive multiple of n_heads {}", self.d_model, self.n_heads));
+        }
+        if self.n_layers == 0 || self.d_ff == 0 || self.d_class == 0 {
+            return bad("net.n_layers", "n_layers, d_ff and d_class must be positive".into());
+        }
+        if !(self.p.is_finite() && self.p > 0.0) {
+            return bad("net.p", format!("must be finite and positive, got {}", self.p));
+        }
+        if !(self.gamma_init.is_finite() && self.gamma_init > 0.0) {
+            return bad("net.gamma_init", format!("must be finite and positive, got {}", self.gamma_init));
+        }
+        Ok(())
+    }
+}
+
+/// Weights of the loss terms.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LossConfig {
+    /// `λ` of `L_dis = λ‖TCD‖₁`. Default 3 (Anomaly Transformer `k`).
+    pub lambda: f64,
+    /// `α₁`, classification weight in the min phase. Default 1 (decision 042).
+    pub alpha1: f64,
+    /// `α₂`, classification weight in the max phase. Default 1 (decision 042).
+    pub alpha2: f64,
+    /// How the two phases are stepped. Default [`MinMax::Summed`] (Anomaly Transformer code).
+    pub min_max: MinMax,
+}
+
+impl Default for LossConfig {
+    fn default() -> Self {
+        Self { lambda: 3.0, alpha1: 1.0, alpha2: 1.0, min_max: MinMax::Summed }
+    }
+}
+
+/// Scheduling of the min and max phases.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum MinMax {
+    /// One AdamW step on the sum of both phase losses (Anomaly Transformer's
+    /// `loss1.backward(); loss2.backward(); step()`).
+    Summed,
+    /// A max-phase step, then a min-phase step on a fresh forward pass (thuml issue #70).
+    Alternating,
+}
+
+/// The per-batch loss terms (all scalars), for training and tests.
+#[derive(Debug, Clone)]
+pub struct LossTerms {
+    /// `L_recon`: mean squared reconstruction error (`‖R̂ − R‖²_F / (b·l·m)`).
+    pub recon: Tensor,
+    /// `λ · mean TCD(T, sg(C))`: the min phase's discrepancy (gradient only to the prior).
+    pub dis_min: Tensor,
+    /// `λ · mean TCD(sg(T), C)`: the max phase's discrepancy (gradient only to the attention).
+    pub dis_max: Tensor,
+    /// `L_class`: BCE over the labelled steps (mean; 0 without labelled steps).
+    pub class: Tensor,
+}
+
+impl LossTerms {
+    /// Min phase: `L_recon + L_dis + α₁ L_class`.
+    ///
+    /// # Errors
+    /// candle errors.
+    pub fn min_phase(&self, cfg: &LossConfig) -> candle_core::Result<Tensor> {
+        (&self.recon + &self.dis_min)? + self.class.affine(cfg.alpha1, 0.0)?
+    }
+
+    /// Max phase: `L_recon − L_dis + α₂ L_class`.
+    ///
+    /// # Errors
+    /// candle errors.
+    pub fn max_phase(&self, cfg: &LossConfig) -> candle_core::Result<Tensor> {
+        (&self.recon - &self.dis_max)? + self.class.affine(cfg.alpha2, 0.0)?
+    }
+}
+
+/// Network outputs for one batch.
+#[derive(Debug, Clone)]
+pub struct Output {
+    /// Reconstruction `R̂`, `b × l × m`.
+    pub r_hat: Tensor,
+    /// Classification logits (sigmoid → attack probability), `b × l`.
+    pub logits: Tensor,
+    /// Prior `Tʰ` per layer, `b × heads × l × l` or `1 × heads × l × l` (TPC).
+    pub prior: Vec<Tensor>,
+    /// Attention `Cʰ` per layer, `b × heads × l × l`.
+    pub attn: Vec<Tensor>,
+}
+
+/// Row-wise Jensen–Shannon divergence of two distributions over the last axis (natural log,
+/// so `0 ≤ JS ≤ ln 2`); shape = input shape without the last axis.
+///
+/// # Errors
+/// candle errors (shape mismatch).
+pub fn js_divergence(p: &Tensor, q: &Tensor) -> candle_core::Result<Tensor> {
+    let m = ((p + q)? * 0.5)?;
+    let ln_m = (&m + JS_EPS)?.log()?;
+    let kl_pm = (p * ((p + JS_EPS)?.log()? - &ln_m)?)?.sum(D::Minus1)?;
+    let kl_qm = (q * ((q + JS_EPS)?.log()? - &ln_m)?)?.sum(D::Minus1)?;
+    (kl_pm + kl_qm)? * 0.5
+}
+
+/// Differentiable layer norm over the last axis with gain and bias.
+fn layer_norm(x: &Tensor, gain: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
+    let mu = x.mean_keepdim(D::Minus1)?;
+    let xc = x.broadcast_sub(&mu)?;
+    let var = xc.sqr()?.mean_keepdim(D::Minus1)?;
+    xc.broadcast_div(&(var + LN_EPS)?.sqrt()?)?.broadcast_mul(gain)?.broadcast_add(bias)
+}
+
+struct Norm {
+    gain: Tensor,
+    bias: Tensor,
+}
+
+impl Norm {
+    fn new(d: usize, vb: VarBuilder) -> candle_core::Result<Self> {
+        Ok(Self { gain: vb.get_with_hints(d, "weight", Init::Const(1.0))?, bias: vb.get_with_hints(d, "bias", Init::Const(0.0))? })
+    }
+
+    fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        layer_norm(x, &self.gain, &self.bias)
+    }
+}
+
+struct Layer {
+    w_q: Linear,
+    w_k: Linear,
+    w_v: Linear,
+    w_o: Linear,
+    /// `ln γ`, `heads × l` (TPC only).
+    log_gamma: Option<Tensor>,
+    /// Width projection of the Gaussian prior (TPC off only).
+    sigma: Option<Linear>,
+    norm1: Norm,
+    ff1: Linear,
+    ff2: Linear,
+    norm2: Norm,
+}
+
+/// The QUADFormer network with its own variables.
+pub struct QuadFormerNet {
+    cfg: NetConfig,
+    len: usize,
+    dim: usize,
+    varmap: VarMap,
+    embed: Linear,
+    /// Sinusoidal positional encoding, `1 × l × d_model`.
+    pos: Tensor,
+    layers: Vec<Layer>,
+    recon: Linear,
+    class1: Linear,
+    class2: Linear,
+    /// `|j − i|^p`, `1 × l × l`, built once (TPC).
+    dist_p: Tensor,
+    /// `|j − i|²`, `1 × 1 × l × l`, built once (Gaussian prior).
+    dist_sq: Tensor,
+    /// Frozen TPC priors per layer for inference (`None` while training).
+    prior_cache: Option<Vec<Tensor>>,
+}
+
+/// Name of the TPC width variable of layer `h` (for tests and inspection).
+pub fn log_gamma_name(h: usize) -> String {
+    format!("layers.{h}.attn.log_gamma")
+}
+
+impl QuadFormerNet {
+    /// Builds the network for windows of `len` steps × `dim` channels and initialises every
+    /// variable from `seed` ([`init_vars_seeded`]; `ln γ = ln gamma_init`).
+    ///
+    /// # Errors
+    /// [`ModelError::Config`] for a bad config; candle errors.
+    pub fn new(cfg: &NetConfig, len: usize, dim: usize, seed: u64) -> Result<Self> {
+        cfg.check()?;
+        if len < 2 || dim == 0 {
+            return Err(ModelError::Config { field: "window.len", msg: format!("need l ≥ 2 and m ≥ 1, got l={len}, m={dim}") });
+        }
+        let dev = Device::Cpu;
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
+        let d = cfg.d_model;
+        let embed = candle_nn::linear(dim, d, vb.pp("embed"))?;
+        let mut layers = Vec::with_capacity(cfg.n_layers);
+        for h in 0..cfg.n_layers {
+            let vl = vb.pp(format!("layers.{h}"));
+            let va = vl.pp("attn");
+            let (log_gamma, sigma) = match cfg.prior {
+                Prior::Tpc => (Some(va.get_with_hints((cfg.n_heads, len), "log_gamma", Init::Const(cfg.gamma_init.ln()))?), None),
+                Prior::Gaussian => (None, Some(candle_nn::linear(d, cfg.n_heads, va.pp("sigma"))?)),
+            };
+            layers.push(Layer {
+                w_q: candle_nn::linear(d, d, va.pp("w_q"))?,
+                w_k: candle_nn::linear(d, d, va.pp("w_k"))?,
+                w_v: candle_nn::linear(d, d, va.pp("w_v"))?,
+                w_o: candle_nn::linear(d, d, va.pp("w_o"))?,
+                log_gamma,
+                sigma,
+                norm1: Norm::new(d, vl.pp("norm1"))?,
+                ff1: candle_nn::linear(d, cfg.d_ff, vl.pp("ff1"))?,
+                ff2: candle_nn::linear(cfg.d_ff, d, vl.pp("ff2"))?,
+                norm2: Norm::new(d, vl.pp("norm2"))?,
+            });
+        }
+        let recon = candle_nn::linear(d, dim, vb.pp("recon"))?;
+        let class1 = candle_nn::linear(dim, cfg.d_class, vb.pp("class1"))?;
+        let class2 = candle_nn::linear(cfg.d_class, 1, vb.pp("class2"))?;
+        init_vars_seeded(&varmap, seed)?;
+        // ln γ is rank 2 and was overwritten by the generic rule: reset it to its constant.
+        for h in 0..cfg.n_layers {
+            if cfg.prior == Prior::Tpc {
+                let t = Tensor::full(cfg.gamma_init.ln() as f32, (cfg.n_heads, len), &dev)?;
+                let mut vm = varmap.clone();
+                vm.set_one(log_gamma_name(h), t)?;
+            }
+        }
+        let (dist_p, dist_sq) = distance_matrices(len, cfg.p)?;
+        Ok(Self {
+            cfg: cfg.clone(),
+            len,
+            dim,
+            varmap,
+            embed,
+            pos: positional_encoding(len, d)?,
+            layers,
+            recon,
+            class1,
+            class2,
+            dist_p,
+            dist_sq,
+            prior_cache: None,
+        })
+    }
+
+    /// The network's variables (for the optimiser and checkpoints).
+    pub fn varmap(&self) -> &VarMap {
+        &self.varmap
+    }
+
+    /// The architecture.
+    pub fn config(&self) -> &NetConfig {
+        &self.cfg
+    }
+
+    /// Window length `l`.
+    pub fn window_len(&self) -> usize {
+        self.len
+    }
+
+    /// Number of channels `m`.
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+
+    /// Number of trainable scalars.
+    pub fn n_params(&self) -> usize {
+        self.varmap.all_vars().iter().map(|v| v.elem_count()).sum()
+    }
+
+    /// Precomputes the TPC priors for inference (they depend only on `γ`); call after the
+    /// last change of the variables. [`QuadFormerNet::thaw`] drops the cache.
+    ///
+    /// # Errors
+    /// candle errors.
+    pub fn freeze(&mut self) -> Result<()> {
+        self.prior_cache = None;
+        if self.cfg.prior == Prior::Tpc {
+            let mut cache = Vec::with_capacity(self.layers.len());
+            for layer in &self.layers {
+                if let Some(lg) = &layer.log_gamma {
+                    cache.push(self.tpc(lg)?.detach());
+                }
+            }
+            self.prior_cache = Some(cache);
+        }
+        Ok(())
+    }
+
+    /// Drops the inference cache (before training again).
+    pub fn thaw(&mut self) {
+        self.prior_cache = None;
+    }
+
+    /// TPC prior `T` of one layer from `ln γ` (`heads × l`): `1 × heads × l × l`, rows sum to 1.
+    fn tpc(&self, log_gamma: &Tensor) -> candle_core::Result<Tensor> {
+        let (heads, l) = log_gamma.dims2()?;
+        let gamma = log_gamma.exp()?.reshape((heads, l, 1))?;
+        // eq:TPC: T = Rescale(exp(−γ·|j−i|^p)), exponent clamped (module docs).
+        let arg = gamma.broadcast_mul(&self.dist_p)?.neg()?.clamp(PRIOR_EXP_FLOOR, 0.0)?;
+        let k = arg.exp()?;
+        k.broadcast_div(&k.sum_keepdim(D::Minus1)?)?.unsqueeze(0)
+    }
+
+    /// Anomaly Transformer's Gaussian prior from the layer input `h` (`(b·l) × d`).
+    fn gaussian_prior(&self, sigma_proj: &Linear, h: &Tensor, b: usize) -> candle_core::Result<Tensor> {
+        let heads = self.cfg.n_heads;
+        let s = sigma_proj.forward(h)?.reshape((b, self.len, heads))?.transpose(1, 2)?.contiguous()?;
+        // σ = 3^(sigmoid(5s) + 1e−5) − 1 (Anomaly Transformer attn.py).
+        let s = (candle_nn::ops::sigmoid(&(s * 5.0)?)? + 1e-5)?;
+        let sigma = ((s * 3f64.ln())?.exp()? - 1.0)?.unsqueeze(D::Minus1)?;
+        let two_var = (sigma.sqr()? * 2.0)?;
+        let arg = self.dist_sq.broadcast_div(&two_var)?.neg()?.clamp(PRIOR_EXP_FLOOR, 0.0)?;
+        let k = arg.exp()?;
+        k.broadcast_div(&k.sum_keepdim(D::Minus1)?)
+    }
+
+    /// Forward pass of `x` (`b × l × m`).
+    ///
+    /// # Errors
+    /// candle errors, e.g. a wrong input shape.
+    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Output> {
+        let (b, l, m) = x.dims3()?;
+        if l != self.len || m != self.dim {
+            candle_core::bail!("input window {l} × {m}, network built for {} × {}", self.len, self.dim)
+        }
+        let (d, heads) = (self.cfg.d_model, self.cfg.n_heads);
+        let dh = d / heads;
+        let scale = 1.0 / (dh as f64).sqrt();
+        let mut h = self.embed.forward(&x.reshape((b * l, m))?)?.reshape((b, l, d))?.broadcast_add(&self.pos)?.reshape((b * l, d))?;
+        let split = |t: Tensor| -> candle_core::Result<Tensor> { t.reshape((b, l, heads, dh))?.transpose(1, 2)?.contiguous() };
+        let mut k_prev: Option<Tensor> = None;
+        let mut prior = Vec::with_capacity(self.layers.len());
+        let mut attn = Vec::with_capacity(self.layers.len());
+        for (idx, layer) in self.layers.iter().enumerate() {
+            let q = split(layer.w_q.forward(&h)?)?;
+            let k = split(layer.w_k.forward(&h)?)?;
+            let v = split(layer.w_v.forward(&h)?)?;
+            // eq:first_layer_attention (h = 1 or DCM off) / eq:cross_layer_attention (h > 1).
+            let keys = match (&k_prev, self.cfg.dcm) {
+                (Some(kp), true) => kp,
+                _ => &k,
+            };
+            let scores = (q.matmul(&keys.t()?)? * scale)?;
+            let c = candle_nn::ops::softmax(&scores, D::Minus1)?;
+            let t = match (&layer.log_gamma, &layer.sigma, &self.prior_cache) {
+                (Some(_), _, Some(cache)) if idx < cache.len() => cache[idx].clone(),
+                (Some(lg), _, _) => self.tpc(lg)?,
+                (None, Some(sp), _) => self.gaussian_prior(sp, &h, b)?,
+                (None, None, _) => candle_core::bail!("layer {idx} has no prior"),
+            };
+            let out = c.matmul(&v)?.transpose(1, 2)?.reshape((b * l, d))?;
+            let z = layer.norm1.forward(&(layer.w_o.forward(&out)? + &h)?)?;
+            let f = layer.ff2.forward(&layer.ff1.forward(&z)?.gelu_erf()?)?;
+            h = layer.norm2.forward(&(f + &z)?)?;
+            prior.push(t);
+            attn.push(c);
+            k_prev = Some(k);
+        }
+        let r_hat = self.recon.forward(&h)?;
+        let logits = self.class2.forward(&self.class1.forward(&r_hat)?.gelu_erf()?)?.reshape((b, l))?;
+        Ok(Output { r_hat: r_hat.reshape((b, l, m))?, logits, prior, attn })
+    }
+
+    /// TCD per step (eq. TCD of sec:attack_detector): mean over layers (and heads) of
+    /// `JS(Tʰ_{i,:} ‖ Cʰ_{i,:})`, `b × l`, with optional stop-gradient on either side.
+    ///
+    /// # Errors
+    /// candle errors.
+    pub fn tcd(out: &Output, detach_prior: bool, detach_attn: bool) -> candle_core::Result<Tensor> {
+        let mut acc: Option<Tensor> = None;
+        for (t, c) in out.prior.iter().zip(&out.attn) {
+            let t = if detach_prior { t.detach() } else { t.clone() };
+            let c = if detach_attn { c.detach() } else { c.clone() };
+            let t = t.broadcast_as(c.shape())?;
+            let js = js_divergence(&t, &c)?.mean(1)?;
+            acc = Some(match acc {
+                Some(a) => (a + js)?,
+                None => js,
+            });
+        }
+        match acc {
+            Some(a) => a / out.prior.len() as f64,
+            None => candle_core::bail!("network has no layers"),
+        }
+    }
+
+    /// All loss terms of a batch (see [`LossTerms`]).
+    ///
+    /// # Errors
+    /// candle errors.
+    pub fn loss_terms(&self, batch: &Batch, cfg: &LossConfig) -> candle_core::Result<LossTerms> {
+        let out = self.forward(&batch.x)?;
+        let recon = (&out.r_hat - &batch.x)?.sqr()?.mean_all()?;
+        let dis_min = (Self::tcd(&out, false, true)?.mean_all()? * cfg.lambda)?;
+        let dis_max = (Self::tcd(&out, true, false)?.mean_all()? * cfg.lambda)?;
+        let class = masked_bce_with_logits(&out.logits, &batch.y, &batch.mask, batch.n_labelled)?;
+        Ok(LossTerms { recon, dis_min, dis_max, class })
+    }
+}
+
+/// BCE with logits, `relu(z) − z·y + ln(1 + e^{−|z|})`, averaged over the masked steps.
+///
+/// # Errors
+/// candle errors.
+pub fn masked_bce_with_logits(z: &Tensor, y: &Tensor, mask: &Tensor, n_labelled: usize) -> candle_core::Result<Tensor> {
+    let bce = ((z.relu()? - (z * y)?)? + (z.abs()?.neg()?.exp()? + 1.0)?.log()?)?;
+    (bce * mask)?.sum_all()? / n_labelled.max(1) as f64
+}
+
+/// `|j − i|^p` (`1 × l × l`) and `|j − i|²` (`1 × 1 × l × l`).
+fn distance_matrices(len: usize, p: f64) -> candle_core::Result<(Tensor, Tensor)> {
+    let mut dp = Vec::with_capacity(len * len);
+    let mut d2 = Vec::with_capacity(len * len);
+    for i in 0..len {
+        for j in 0..len {
+            let a = (j as f64 - i as f64).abs();
+            dp.push(a.powf(p) as f32);
+            d2.push((a * a) as f32);
+        }
+    }
+    Ok((Tensor::from_vec(dp, (1, len, len), &Device::Cpu)?, Tensor::from_vec(d2, (1, 1, len, len), &Device::Cpu)?))
+}
+
+/// Fixed sinusoidal positional encoding (Vaswani et al.), `1 × l × d`.
+fn positional_encoding(len: usize, d: usize) -> candle_core::Result<Tensor> {
+    let mut pe = vec![0f32; len * d];
+    for pos in 0..len {
+        for i in 0..d {
+            let k = (i / 2 * 2) as f64;
+            let angle = pos as f64 / 10000f64.powf(k / d as f64);
+            pe[pos * d + i] = if i % 2 == 0 { angle.sin() } else { angle.cos() } as f32;
+        }
+    }
+    Tensor::from_vec(pe, (1, len, d), &Device::Cpu)
+}
+
+/// The network paired with its loss weights, as trained by [`crate::train::train`].
+pub struct MinMaxTrainer<'a> {
+    /// The network.
+    pub net: &'a QuadFormerNet,
+    /// Loss weights and phase schedule.
+    pub loss: LossConfig,
+}
+
+impl crate::train::TrainableModel for MinMaxTrainer<'_> {
+    fn n_phases(&self) -> usize {
+        match self.loss.min_max {
+            MinMax::Summed => 1,
+            MinMax::Alternating => 2,
+        }
+    }
+
+    fn loss(&self, batch: &Batch, phase: usize) -> candle_core::Result<Tensor> {
+        let terms = self.net.loss_terms(batch, &self.loss)?;
+        match (self.loss.min_max, phase) {
+            // Anomaly Transformer: loss1 (max) and loss2 (min) back-propagated into one step.
+            (MinMax::Summed, _) => terms.max_phase(&self.loss)? + terms.min_phase(&self.loss)?,
+            (MinMax::Alternating, 0) => terms.max_phase(&self.loss),
+            (MinMax::Alternating, _) => terms.min_phase(&self.loss),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

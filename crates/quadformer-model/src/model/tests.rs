@@ -1,0 +1,2 @@
+//! Unit tests of the QUADFormer network.
+use super::*;

@@ -1,0 +1,340 @@
+//! A generic, seeded mini-batch training loop over [`Windows`] with AdamW and early stopping.
+//!
+//! Any model that turns a [`Batch`] into a scalar loss implements [`TrainableModel`]; QUADFormer
+//! (min-max, eq:TPC/TCD losses) and the CNN/LSTM baselines (per-step BCE) share this loop.
+//!
+//! Per epoch: the windows are shuffled with a generator seeded from `(seed, epoch)`, split into
+//! mini-batches, and for every batch each of the model's `n_phases()` losses is back-propagated
+//! and followed by one AdamW step (one phase = the Anomaly Transformer's single step on the
+//! summed min and max losses; two phases = alternating steps). After each epoch the caller's
+//! validation closure returns a metric where **lower is better** (e.g. validation loss, or
+//! `−F1`); training stops after `patience` epochs without improvement and the variables of the
+//! best epoch are restored. Nothing here draws from candle's unseeded generator, so a run is
+//! bit-identical for a fixed seed on the CPU.
+
+use std::time::Instant;
+
+use candle_core::{Device, Tensor};
+use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarMap};
+use indicatif::{ProgressBar, ProgressStyle};
+use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{ModelError, Result};
+use crate::window::{Batch, Windows};
+
+/// A model trainable by [`train`].
+pub trait TrainableModel {
+    /// Optimiser steps per mini-batch; phase indices `0..n_phases()` are passed to
+    /// [`TrainableModel::loss`] in order. Default 1.
+    fn n_phases(&self) -> usize {
+        1
+    }
+
+    /// The scalar loss of `batch` for `phase`; it must depend on the variables to train.
+    ///
+    /// # Errors
+    /// Any candle error.
+    fn loss(&self, batch: &Batch, phase: usize) -> candle_core::Result<Tensor>;
+}
+
+/// Hyper-parameters of the training loop.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Maximum number of epochs. Default 10 (Anomaly Transformer `num_epochs`).
+    pub epochs: usize,
+    /// Windows per mini-batch. Default 32 (shared/reference/rust-stack.md §3, the measured
+    /// configuration; Anomaly Transformer uses 256 on a GPU).
+    pub batch_size: usize,
+    /// AdamW learning rate. Default 1e-3 (candle `ParamsAdamW` default).
+    pub lr: f64,
+    /// AdamW decoupled weight decay. Default 0.01 (candle and PyTorch AdamW default).
+    pub weight_decay: f64,
+    /// Learning-rate factor applied after every epoch from the second on. Default 0.5
+    /// (Anomaly Transformer `adjust_learning_rate`: halve per epoch).
+    pub lr_decay: f64,
+    /// Epochs without validation improvement before stopping. Default 3 (Anomaly Transformer
+    /// `EarlyStopping(patience=3)`).
+    pub patience: usize,
+    /// At most this many (randomly chosen) windows per epoch; `None` = all. Default `None`.
+    pub max_windows_per_epoch: Option<usize>,
+    /// Seed of the shuffling generator. Default 0.
+    pub seed: u64,
+    /// Show a progress bar with the loss per epoch on stderr. Default true.
+    pub progress: bool,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            epochs: 10,
+            batch_size: 32,
+            lr: 1e-3,
+            weight_decay: 0.01,
+            lr_decay: 0.5,
+            patience: 3,
+            max_windows_per_epoch: None,
+            seed: 0,
+            progress: true,
+        }
+    }
+}
+
+impl TrainConfig {
+    /// Checks that sizes are positive and rates finite and non-negative.
+    ///
+    /// # Errors
+    /// [`ModelError::Config`] naming the field.
+    pub fn check(&self) -> Result<()> {
+        let bad = |field: &'static str, msg: &str| Err(ModelError::Config { field, msg: msg.into() });
+        if self.epochs == 0 {
+            return bad("train.epochs", "must be at least 1");
+        }
+        if self.batch_size == 0 {
+            return bad("train.batch_size", "must be at least 1");
+        }
+        if !(self.lr.is_finite() && self.lr > 0.0) {
+            return bad("train.lr", "must be finite and positive");
+        }
+        if !(self.weight_decay.is_finite() && self.weight_decay >= 0.0) {
+            return bad("train.weight_decay", "must be finite and non-negative");
+        }
+        if !(self.lr_decay.is_finite() && self.lr_decay > 0.0 && self.lr_decay <= 1.0) {
+            return bad("train.lr_decay", "must be in (0, 1]");
+        }
+        Ok(())
+    }
+}
+
+/// Statistics of one epoch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpochStats {
+    /// Epoch number, from 1.
+    pub epoch: usize,
+    /// Mean training loss over the epoch's mini-batches (phase 0).
+    pub train_loss: f64,
+    /// Validation metric after the epoch (lower is better).
+    pub valid_metric: f64,
+    /// Wall time of the epoch's optimisation (without validation), seconds.
+    pub train_seconds: f64,
+}
+
+/// What a training run did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainReport {
+    /// One entry per epoch run.
+    pub history: Vec<EpochStats>,
+    /// The epoch whose variables were kept.
+    pub best_epoch: usize,
+    /// Its validation metric.
+    pub best_metric: f64,
+    /// Optimiser steps taken (all phases).
+    pub steps: usize,
+    /// Windows processed (counted once per batch, whatever the number of phases).
+    pub windows: usize,
+    /// Total optimisation wall time, seconds.
+    pub train_seconds: f64,
+}
+
+impl TrainReport {
+    /// Optimiser steps per second of optimisation time.
+    pub fn steps_per_s(&self) -> f64 {
+        self.steps as f64 / self.train_seconds.max(1e-9)
+    }
+
+    /// Windows per second of optimisation time.
+    pub fn windows_per_s(&self) -> f64 {
+        self.windows as f64 / self.train_seconds.max(1e-9)
+    }
+}
+
+/// Copies of all variables of `varmap`, by name.
+fn snapshot(varmap: &VarMap) -> Result<Vec<(String, Tensor)>> {
+    let data = varmap.data().lock().map_err(|_| ModelError::Data { msg: "variable map lock poisoned".into() })?;
+    data.iter().map(|(k, v)| Ok((k.clone(), v.as_tensor().copy()?))).collect()
+}
+
+fn restore(varmap: &VarMap, snap: &[(String, Tensor)]) -> Result<()> {
+    let data = varmap.data().lock().map_err(|_| ModelError::Data { msg: "variable map lock poisoned".into() })?;
+    for (name, t) in snap {
+        if let Some(var) = data.get(name) {
+            var.set(t)?;
+        }
+    }
+    Ok(())
+}
+
+/// Seeded Fisher–Yates shuffle.
+fn shuffle(idx: &mut [usize], rng: &mut StdRng) {
+    for i in (1..idx.len()).rev() {
+        let j = rng.random_range(0..=i);
+        idx.swap(i, j);
+    }
+}
+
+/// Trains the variables of `varmap` through `model` on `windows` (module docs for the loop),
+/// calling `valid(model)` after every epoch; lower validation metric is better.
+///
+/// # Errors
+/// [`ModelError::Config`] for a bad config, [`ModelError::Data`] for no windows,
+/// [`ModelError::Numerical`] naming epoch and step for a non-finite loss, and any error of
+/// `valid` or candle.
+pub fn train<M: TrainableModel + ?Sized>(
+    model: &M,
+    varmap: &VarMap,
+    windows: &Windows,
+    cfg: &TrainConfig,
+    valid: &mut dyn FnMut(&M) -> Result<f64>,
+) -> Result<TrainReport> {
+    cfg.check()?;
+    if windows.is_empty() {
+        return Err(ModelError::Data { msg: "no training windows".into() });
+    }
+    let device = Device::Cpu;
+    let params = ParamsAdamW { lr: cfg.lr, weight_decay: cfg.weight_decay, ..ParamsAdamW::default() };
+    let mut opt = AdamW::new(varmap.all_vars(), params)?;
+    let per_epoch = cfg.max_windows_per_epoch.unwrap_or(usize::MAX).min(windows.len());
+    let batches_per_epoch = per_epoch.div_ceil(cfg.batch_size);
+    let pb = if cfg.progress {
+        let pb = ProgressBar::new((cfg.epochs * batches_per_epoch) as u64);
+        if let Ok(style) = ProgressStyle::with_template("{prefix} [{elapsed_precise}] {wide_bar} {pos}/{len} batches {msg}") {
+            pb.set_style(style);
+        }
+        pb.set_prefix("training");
+        pb
+    } else {
+        ProgressBar::hidden()
+    };
+    let mut report = TrainReport {
+        history: Vec::new(),
+        best_epoch: 0,
+        best_metric: f64::INFINITY,
+        steps: 0,
+        windows: 0,
+        train_seconds: 0.0,
+    };
+    let mut best: Option<Vec<(String, Tensor)>> = None;
+    let mut since_best = 0;
+    let mut lr = cfg.lr;
+    for epoch in 1..=cfg.epochs {
+        let mut rng = StdRng::seed_from_u64(cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(epoch as u64));
+        let mut idx: Vec<usize> = (0..windows.len()).collect();
+        shuffle(&mut idx, &mut rng);
+        idx.truncate(per_epoch);
+        let t0 = Instant::now();
+        let mut loss_sum = 0.0;
+        for (b, chunk) in idx.chunks(cfg.batch_size).enumerate() {
+            let batch = windows.batch(chunk, &device)?;
+            for phase in 0..model.n_phases() {
+                let loss = model.loss(&batch, phase)?;
+                let v = f64::from(loss.to_scalar::<f32>()?);
+                if !v.is_finite() {
+                    return Err(ModelError::Numerical { what: format!("loss {v} at epoch {epoch}, batch {b}, phase {phase}") });
+                }
+                if phase == 0 {
+                    loss_sum += v;
+                }
+                opt.backward_step(&loss)?;
+                report.steps += 1;
+            }
+            report.windows += chunk.len();
+            pb.inc(1);
+        }
+        let train_seconds = t0.elapsed().as_secs_f64();
+        report.train_seconds += train_seconds;
+        let valid_metric = valid(model)?;
+        let stats = EpochStats { epoch, train_loss: loss_sum / batches_per_epoch.max(1) as f64, valid_metric, train_seconds };
+        let line = format!("epoch {epoch}: train loss {:.5}, valid metric {:.5}", stats.train_loss, stats.valid_metric);
+        pb.set_message(line.clone());
+        if cfg.progress {
+            pb.println(line);
+        }
+        report.history.push(stats);
+        if valid_metric < report.best_metric || best.is_none() {
+            report.best_metric = valid_metric;
+            report.best_epoch = epoch;
+            best = Some(snapshot(varmap)?);
+            since_best = 0;
+        } else {
+            since_best += 1;
+            if since_best >= cfg.patience.max(1) {
+                break;
+            }
+        }
+        if epoch >= 2 {
+            lr *= cfg.lr_decay;
+            opt.set_learning_rate(lr);
+        }
+    }
+    pb.finish_and_clear();
+    if let Some(snap) = best {
+        restore(varmap, &snap)?;
+    }
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use candle_core::{DType, Module};
+    use candle_nn::VarBuilder;
+
+    use super::*;
+    use crate::init::init_vars_seeded;
+
+    /// A per-step logistic classifier: the smallest user of the loop.
+    struct PerStep {
+        lin: candle_nn::Linear,
+    }
+
+    impl TrainableModel for PerStep {
+        fn loss(&self, batch: &Batch, _phase: usize) -> candle_core::Result<Tensor> {
+            let logits = self.lin.forward(&batch.x)?.squeeze(2)?;
+            candle_nn::loss::binary_cross_entropy_with_logit(&logits, &batch.y)
+        }
+    }
+
+    fn toy(n_win: usize) -> Windows {
+        use ekf_residue::{LabelledResidues, LabelledSeries, ResidueSeries};
+        let n = n_win * 10;
+        let labels: Vec<bool> = (0..n).map(|k| k % 7 == 0).collect();
+        let r: Vec<f64> = labels.iter().map(|&a| if a { 3.0 } else { -1.0 }).collect();
+        let s = ResidueSeries::from_flat((0..n).map(|k| k as f64).collect(), vec!["a".into()], r, vec![1.0; n]).unwrap();
+        let split = LabelledResidues::new(vec![LabelledSeries::new(s, Some(labels)).unwrap()]).unwrap();
+        let norm = crate::window::Normaliser::fit(&split).unwrap();
+        Windows::from_split(&split, &norm, &crate::window::WindowConfig { len: 10, stride: 10 }).unwrap()
+    }
+
+    fn run(seed: u64) -> (TrainReport, Vec<f32>) {
+        let vm = VarMap::new();
+        let vb = VarBuilder::from_varmap(&vm, DType::F32, &Device::Cpu);
+        let model = PerStep { lin: candle_nn::linear(1, 1, vb).unwrap() };
+        init_vars_seeded(&vm, seed).unwrap();
+        let w = toy(8);
+        let cfg = TrainConfig { epochs: 4, batch_size: 3, lr: 0.1, lr_decay: 1.0, progress: false, ..Default::default() };
+        let wv = w.clone();
+        let mut valid = |m: &PerStep| -> Result<f64> {
+            let b = wv.batch(&(0..wv.len()).collect::<Vec<_>>(), &Device::Cpu)?;
+            Ok(f64::from(m.loss(&b, 0)?.to_scalar::<f32>()?))
+        };
+        let report = train(&model, &vm, &w, &cfg, &mut valid).unwrap();
+        (report, model.lin.weight().flatten_all().unwrap().to_vec1().unwrap())
+    }
+
+    #[test]
+    fn loop_learns_and_is_deterministic() {
+        let (a, wa) = run(3);
+        let (b, wb) = run(3);
+        assert_eq!(wa, wb);
+        assert_eq!(a.history, b.history.iter().map(|h| EpochStats { train_seconds: a.history[h.epoch - 1].train_seconds, ..h.clone() }).collect::<Vec<_>>());
+        assert!(a.history.last().unwrap().valid_metric < a.history[0].train_loss);
+        assert_eq!(a.steps, 4 * 3);
+    }
+
+    #[test]
+    fn bad_config_is_named() {
+        let e = TrainConfig { batch_size: 0, ..Default::default() }.check().unwrap_err();
+        assert!(e.to_string().contains("batch_size"), "{e}");
+    }
+}
