@@ -1,0 +1,48 @@
+//! Errors of the `baselines` crate: invalid hyper-parameters, unusable data, back-end failures.
+
+use ekf_residue::{DetectError, ResidueError};
+
+/// Why a baseline detector could not be configured, fitted or run.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum BaselineError {
+    /// A hyper-parameter is out of its valid range.
+    #[error("invalid config field `{field}`: {msg}")]
+    Config {
+        /// The offending field.
+        field: &'static str,
+        /// Why it is invalid.
+        msg: String,
+    },
+    /// Scoring or threshold selection failed (channel mismatch, no labels, NaN, ...).
+    #[error(transparent)]
+    Detect(#[from] DetectError),
+    /// The SVM solver (smartcore) failed.
+    #[error("svm training failed: {msg}")]
+    Svm {
+        /// The solver's message.
+        msg: String,
+    },
+    /// The neural-network back end (candle) failed.
+    #[error("candle failed in {context}: {msg}")]
+    Candle {
+        /// What was being done.
+        context: &'static str,
+        /// candle's message.
+        msg: String,
+    },
+}
+
+impl From<ResidueError> for BaselineError {
+    fn from(e: ResidueError) -> Self {
+        Self::Detect(DetectError::Residue(e))
+    }
+}
+
+/// Result with [`BaselineError`] as the default error.
+pub type Result<T, E = BaselineError> = std::result::Result<T, E>;
+
+/// The `Dim` error of a streamed step whose dimension does not match the fitted channels.
+pub(crate) fn step_dim_error(expected: usize, got: usize) -> DetectError {
+    DetectError::Residue(ResidueError::Dim { what: "r_k of an online step", expected, got })
+}
