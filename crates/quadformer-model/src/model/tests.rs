@@ -1,2 +1,178 @@
-//! Unit tests of the QUADFormer network.
+//! Unit tests of the QUADFormer network: shapes, TPC normalisation, Jensen–Shannon bounds,
+//! gradient coverage and the stop-gradient split of the min-max phases.
+
+use candle_core::Var;
+use proptest::prelude::*;
+use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
+
 use super::*;
+
+fn tiny(prior: Prior, dcm: bool) -> NetConfig {
+    NetConfig { d_model: 8, n_heads: 2, n_layers: 2, d_ff: 16, d_class: 4, prior, dcm, ..NetConfig::default() }
+}
+
+fn batch(b: usize, l: usize, m: usize, seed: u64) -> Batch {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let x: Vec<f32> = (0..b * l * m).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+    let y: Vec<f32> = (0..b * l).map(|i| if i % 5 == 0 { 1.0 } else { 0.0 }).collect();
+    let mask = vec![1f32; b * l];
+    Batch {
+        x: Tensor::from_vec(x, (b, l, m), &Device::Cpu).unwrap(),
+        y: Tensor::from_vec(y, (b, l), &Device::Cpu).unwrap(),
+        mask: Tensor::from_vec(mask, (b, l), &Device::Cpu).unwrap(),
+        n_labelled: b * l,
+    }
+}
+
+fn vars(net: &QuadFormerNet) -> Vec<(String, Var)> {
+    let data = net.varmap().data().lock().unwrap();
+    let mut v: Vec<(String, Var)> = data.iter().map(|(k, v)| (k.clone(), v.clone())).collect();
+    v.sort_by(|a, b| a.0.cmp(&b.0));
+    v
+}
+
+fn grad_norm(grads: &candle_core::backprop::GradStore, var: &Var) -> f32 {
+    grads.get(var.as_tensor()).map_or(0.0, |g| g.abs().unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap())
+}
+
+#[test]
+fn output_shapes() {
+    let net = QuadFormerNet::new(&tiny(Prior::Tpc, true), 12, 3, 0).unwrap();
+    let out = net.forward(&batch(4, 12, 3, 1).x).unwrap();
+    assert_eq!(out.r_hat.dims(), &[4, 12, 3]);
+    assert_eq!(out.logits.dims(), &[4, 12]);
+    assert_eq!(out.attn.len(), 2);
+    assert_eq!(out.attn[0].dims(), &[4, 2, 12, 12]);
+    assert_eq!(out.prior[1].dims(), &[1, 2, 12, 12]);
+    assert_eq!(QuadFormerNet::tcd(&out, false, false).unwrap().dims(), &[4, 12]);
+    assert!(net.forward(&batch(1, 11, 3, 1).x).is_err());
+}
+
+#[test]
+fn prior_rows_sum_to_one_and_peak_on_diagonal() {
+    for prior in [Prior::Tpc, Prior::Gaussian] {
+        let net = QuadFormerNet::new(&tiny(prior, true), 30, 2, 0).unwrap();
+        let out = net.forward(&batch(2, 30, 2, 3).x).unwrap();
+        for t in &out.prior {
+            let sums = t.sum(D::Minus1).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            assert!(sums.iter().all(|s| (s - 1.0).abs() < 1e-5), "{prior:?}: {sums:?}");
+            let rows = t.flatten_to(2).unwrap().to_vec2::<f32>().unwrap();
+            for (i, row) in rows.iter().enumerate() {
+                let i = i % 30;
+                assert!(row.iter().all(|v| *v <= row[i] + 1e-7 && v.is_finite() && *v >= 0.0));
+            }
+        }
+    }
+}
+
+#[test]
+fn every_parameter_receives_gradient() {
+    for (prior, dcm) in [(Prior::Tpc, true), (Prior::Tpc, false), (Prior::Gaussian, true)] {
+        let net = QuadFormerNet::new(&tiny(prior, dcm), 10, 3, 5).unwrap();
+        let trainer = MinMaxTrainer { net: &net, loss: LossConfig::default() };
+        let loss = crate::train::TrainableModel::loss(&trainer, &batch(3, 10, 3, 2), 0).unwrap();
+        let grads = loss.backward().unwrap();
+        for (name, var) in vars(&net) {
+            // With DCM the last layer's keys feed no later layer and its queries attend to the
+            // previous layer's keys, so its own `w_k` is unused (eq:cross_layer_attention).
+            if dcm && name.starts_with("layers.1.attn.w_k") {
+                continue;
+            }
+            assert!(grad_norm(&grads, &var) > 0.0, "{prior:?} dcm={dcm}: no gradient reaches {name}");
+        }
+    }
+}
+
+#[test]
+fn min_max_phases_split_gradients_like_anomaly_transformer() {
+    let net = QuadFormerNet::new(&tiny(Prior::Tpc, true), 10, 3, 9).unwrap();
+    let terms = net.loss_terms(&batch(2, 10, 3, 4), &LossConfig::default()).unwrap();
+    let g_min = terms.dis_min.backward().unwrap();
+    let g_max = terms.dis_max.backward().unwrap();
+    for (name, var) in vars(&net) {
+        let (gmin, gmax) = (grad_norm(&g_min, &var), grad_norm(&g_max, &var));
+        if name.ends_with("log_gamma") {
+            assert!(gmin > 0.0, "min phase must move γ ({name})");
+            assert_eq!(gmax, 0.0, "max phase must not move the detached prior ({name})");
+        } else if name.contains("w_q") || name.starts_with("embed") {
+            assert_eq!(gmin, 0.0, "min phase must not move the detached attention ({name})");
+            assert!(gmax > 0.0, "max phase must move the attention ({name})");
+        }
+    }
+    // Both phases see the same TCD value.
+    let a = terms.dis_min.to_scalar::<f32>().unwrap();
+    let b = terms.dis_max.to_scalar::<f32>().unwrap();
+    assert_eq!(a, b);
+}
+
+#[test]
+fn same_seed_same_network() {
+    let x = batch(2, 10, 3, 1).x;
+    let a = QuadFormerNet::new(&tiny(Prior::Tpc, true), 10, 3, 11).unwrap().forward(&x).unwrap();
+    let b = QuadFormerNet::new(&tiny(Prior::Tpc, true), 10, 3, 11).unwrap().forward(&x).unwrap();
+    let c = QuadFormerNet::new(&tiny(Prior::Tpc, true), 10, 3, 12).unwrap().forward(&x).unwrap();
+    let v = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    assert_eq!(v(&a.r_hat), v(&b.r_hat));
+    assert_ne!(v(&a.r_hat), v(&c.r_hat));
+}
+
+#[test]
+fn frozen_prior_gives_identical_outputs() {
+    let mut net = QuadFormerNet::new(&tiny(Prior::Tpc, true), 10, 3, 11).unwrap();
+    let x = batch(2, 10, 3, 1).x;
+    let a = net.forward(&x).unwrap().logits.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    net.freeze().unwrap();
+    let b = net.forward(&x).unwrap().logits.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    assert_eq!(a, b);
+}
+
+#[test]
+fn bce_matches_definition() {
+    let z = Tensor::new(&[[0.0f32, 2.0, -3.0]], &Device::Cpu).unwrap();
+    let y = Tensor::new(&[[1.0f32, 0.0, 0.0]], &Device::Cpu).unwrap();
+    let mask = Tensor::new(&[[1.0f32, 1.0, 0.0]], &Device::Cpu).unwrap();
+    let got = masked_bce_with_logits(&z, &y, &mask, 2).unwrap().to_scalar::<f32>().unwrap();
+    let sig = |v: f64| 1.0 / (1.0 + (-v).exp());
+    let want = (-(sig(0.0).ln()) - (1.0 - sig(2.0)).ln()) / 2.0;
+    assert!((f64::from(got) - want).abs() < 1e-6, "{got} vs {want}");
+}
+
+fn distribution(raw: &[f64]) -> Vec<f32> {
+    let s: f64 = raw.iter().sum();
+    raw.iter().map(|v| (v / s) as f32).collect()
+}
+
+proptest! {
+    #[test]
+    fn js_is_symmetric_nonnegative_and_bounded(
+        a in proptest::collection::vec(0.0f64..1.0, 8),
+        b in proptest::collection::vec(0.0f64..1.0, 8),
+        spike in 0usize..8,
+    ) {
+        let mut a = a;
+        a[spike] += 1e-3;
+        let mut b = b;
+        b[(spike + 3) % 8] += 1e-3;
+        let p = Tensor::new(distribution(&a), &Device::Cpu).unwrap();
+        let q = Tensor::new(distribution(&b), &Device::Cpu).unwrap();
+        let pq = js_divergence(&p, &q).unwrap().to_scalar::<f32>().unwrap();
+        let qp = js_divergence(&q, &p).unwrap().to_scalar::<f32>().unwrap();
+        let pp = js_divergence(&p, &p).unwrap().to_scalar::<f32>().unwrap();
+        prop_assert!((pq - qp).abs() < 1e-6);
+        prop_assert!(pq >= -1e-7);
+        prop_assert!(pq <= std::f32::consts::LN_2 + 1e-6);
+        prop_assert!(pp.abs() < 1e-6);
+    }
+
+    #[test]
+    fn js_of_disjoint_supports_is_ln2(k in 1usize..7) {
+        let mut a = vec![0.0f64; 8];
+        let mut b = vec![0.0f64; 8];
+        a[..k].iter_mut().for_each(|v| *v = 1.0);
+        b[k..].iter_mut().for_each(|v| *v = 1.0);
+        let js = js_divergence(&Tensor::new(distribution(&a), &Device::Cpu).unwrap(), &Tensor::new(distribution(&b), &Device::Cpu).unwrap())
+            .unwrap().to_scalar::<f32>().unwrap();
+        prop_assert!((js - std::f32::consts::LN_2).abs() < 1e-5);
+    }
+}
