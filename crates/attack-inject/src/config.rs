@@ -5,7 +5,7 @@
 //! applied to GPS positions in the local ENU frame (metres). Defaults come from DESIGN.md
 //! ("Conventions": Attack I/II shapes, about 12% of steps attacked, amplitudes about 3 σ to
 //! 30 m, sweep 0.5 σ to 10 σ) and `estimation-and-detectors.md` §5 (step/bias, ramp rates
-//! 0.05–2 m/s, replay delay 2 s, freeze) and §3 (GPS σ about 1 m, PX4 SITL `eph = 1.0`).
+//! 0.05–2 m/s, replay delay 2 s, freeze) and §3 (GPS σ 0.5 m horizontal, PX4 EKF2_GPS_P_NOISE).
 
 use serde::{Deserialize, Serialize};
 
@@ -139,7 +139,8 @@ pub struct AttackConfig {
     #[serde(default = "default_attacked_fraction")]
     pub attacked_fraction: f64,
     /// GPS position noise standard deviation in metres, the unit of amplitudes.
-    /// Default 1.0 (PX4 SITL `eph = epv = 1.0`, estimation-and-detectors.md §3).
+    /// Default 0.5: PX4 EKF2_GPS_P_NOISE, the horizontal σ of the simulator's default
+    /// `uav_dynamics::sim::SimConfig::gps_sigma_m` (estimation-and-detectors.md §3).
     #[serde(default = "default_gps_sigma_m")]
     pub gps_sigma_m: f64,
     /// Amplitude distribution. Default `Range { min_sigma: 3, max_m: 30 }`.
@@ -173,7 +174,7 @@ const fn default_attacked_fraction() -> f64 {
     0.12
 }
 const fn default_gps_sigma_m() -> f64 {
-    1.0
+    0.5
 }
 const fn default_ramp_probability() -> f64 {
     0.5

@@ -86,7 +86,7 @@ fn amplitudes_within_range_and_fixed_sweep() {
     let p = plan(AttackKind::Sparse, 6000, 5);
     for iv in p.intervals() {
         let AttackShape::Burst { offset } = iv.shape else { panic!("not a burst") };
-        assert!(offset.norm() >= 3.0 - 1e-9 && offset.norm() <= 30.0 + 1e-9, "{}", offset.norm());
+        assert!(offset.norm() >= 1.5 - 1e-9 && offset.norm() <= 30.0 + 1e-9, "{}", offset.norm());
     }
     let mut cfg = AttackConfig::new(AttackKind::Persistent);
     cfg.amplitude = AmplitudeConfig::Fixed { sigma_multiple: 0.5 };
