@@ -18,6 +18,15 @@ pub enum Error {
         /// Which quantity.
         what: &'static str,
     },
+    /// The reference cannot be flown by a quadrotor at time `t_s` (e.g. free fall or a thrust
+    /// direction below the horizon in differential flatness).
+    #[error("reference not flyable at t = {t_s} s: {msg}")]
+    Flatness {
+        /// Time of the offending reference point, seconds.
+        t_s: f64,
+        /// What is wrong.
+        msg: String,
+    },
 }
 
 /// Result alias with this crate's [`Error`].
