@@ -35,5 +35,12 @@ pub mod residues;
 pub mod series;
 
 pub use detector::{Confusion, Detector, Fit, OnlineDecision, OnlineDetector, WindowedOnline, best_f1_threshold, check_channels};
+pub use ekf::{CovarianceUpdate, DivergenceGuard, Ekf, Innovation};
 pub use error::{DetectError, FilterError, ResidueError};
+pub use model1_filter::{ImuNoise, Model1Filter};
+pub use model2_filter::Model2Filter;
+pub use residues::{
+    Estimator, FilterConfig, GpsFusion, InitConfig, MeasurementNoise, Measurements, ModelKind, ResidueOutput, StateEstimate,
+    UpdateOutcome, generate_residues,
+};
 pub use series::{LabelledResidues, LabelledSeries, ResidueSeries, ResidueStep};
