@@ -1,1 +1,477 @@
-//! The experiment matrix runner: cells x methods x seeds, cached and resumable.
+//! The experiment matrix runner: fits every method of Tables I and II on a cell's training and
+//! validation splits, scores the test split, and turns the outcome into a [`RunResult`].
+//!
+//! Protocol (DESIGN.md, "Evaluation protocol"): each method's thresholds and hyper-parameters
+//! are chosen inside its [`Fit::fit`] on the validation split; the test split is scored once,
+//! per step, without point adjustment. Finished `(cell, method, seed)` runs are cached as JSON
+//! next to the results, keyed by a hash of everything that determines them, so an interrupted
+//! run resumes and a changed configuration is recomputed.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use baselines::{BhtConfig, Chi2Config, CnnConfig, CusumConfig, LstmConfig, Px4GateConfig, SprtConfig, SvmConfig};
+use ekf_residue::{Detector, Fit, LabelledResidues};
+use quadformer_model::QuadFormerConfig;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use crate::io::write_text_atomic;
+use crate::metrics::{FlightOutcome, evaluate};
+use crate::table::{Cell, RunResult};
+
+/// Largest number of ROC points kept per run for plotting.
+const ROC_POINTS_KEPT: usize = 200;
+
+/// Errors of the runner.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RunError {
+    /// A method failed to fit.
+    #[error("{method}: fit failed: {msg}")]
+    Fit {
+        /// Method name.
+        method: &'static str,
+        /// The method's error, as text.
+        msg: String,
+    },
+    /// A fitted method failed to score a series.
+    #[error("{method}: scoring failed: {source}")]
+    Score {
+        /// Method name.
+        method: &'static str,
+        /// The detector's error.
+        source: ekf_residue::DetectError,
+    },
+    /// Metrics could not be computed.
+    #[error("{method} on {cell}: {source}")]
+    Metrics {
+        /// Method name.
+        method: &'static str,
+        /// The cell.
+        cell: Cell,
+        /// The metric error.
+        source: crate::metrics::MetricsError,
+    },
+    /// The test split has no labels.
+    #[error("test flight {flight_idx} has no labels")]
+    UnlabelledTest {
+        /// Index of the flight in the test split.
+        flight_idx: usize,
+    },
+    /// An unknown method name was given.
+    #[error("unknown method `{0}` (known: quadformer, cusum, sprt, bht, svm, cnn, lstm, chi2, px4-gate)")]
+    UnknownMethod(String),
+    /// Reading or writing the run cache failed.
+    #[error("run cache {path}: {msg}")]
+    Cache {
+        /// The cache file.
+        path: PathBuf,
+        /// What went wrong.
+        msg: String,
+    },
+}
+
+/// Result alias of the runner.
+pub type Result<T, E = RunError> = std::result::Result<T, E>;
+
+/// A detection method of the comparison: the paper's seven rows plus two extra rows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// QUADFormer (paper sec:attack_detector).
+    QuadFormer,
+    /// CUSUM on the NIS (Murguia & Ruths).
+    Cusum,
+    /// Wald's sequential probability ratio test.
+    Sprt,
+    /// Binary hypothesis test (ellipsoid).
+    Bht,
+    /// RBF support vector machine on residue windows.
+    Svm,
+    /// 1-D convolutional network on residue windows.
+    Cnn,
+    /// LSTM on residue windows.
+    Lstm,
+    /// Chi-squared test on the NIS (extra row).
+    Chi2,
+    /// PX4 EKF2-style GPS innovation gate (extra row).
+    Px4Gate,
+}
+
+impl Method {
+    /// Every method, in table order.
+    pub const ALL: [Method; 9] = [
+        Method::Cusum,
+        Method::Sprt,
+        Method::Bht,
+        Method::Svm,
+        Method::Cnn,
+        Method::Lstm,
+        Method::QuadFormer,
+        Method::Chi2,
+        Method::Px4Gate,
+    ];
+
+    /// The name used in tables (as the fitted detector's `Detector::name` returns it).
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::QuadFormer => "QUADFormer",
+            Method::Cusum => "CUSUM",
+            Method::Sprt => "SPRT",
+            Method::Bht => "BHT",
+            Method::Svm => "SVM",
+            Method::Cnn => "CNN",
+            Method::Lstm => "LSTM",
+            Method::Chi2 => "Chi2",
+            Method::Px4Gate => "PX4 gate",
+        }
+    }
+
+    /// The command-line and file-name form, e.g. `px4-gate`.
+    pub fn slug(self) -> &'static str {
+        match self {
+            Method::QuadFormer => "quadformer",
+            Method::Cusum => "cusum",
+            Method::Sprt => "sprt",
+            Method::Bht => "bht",
+            Method::Svm => "svm",
+            Method::Cnn => "cnn",
+            Method::Lstm => "lstm",
+            Method::Chi2 => "chi2",
+            Method::Px4Gate => "px4-gate",
+        }
+    }
+
+    /// Parses a [`Method::slug`] (case-insensitive).
+    ///
+    /// # Errors
+    /// [`RunError::UnknownMethod`].
+    pub fn parse(s: &str) -> Result<Self> {
+        let s = s.trim().to_ascii_lowercase();
+        Method::ALL.into_iter().find(|m| m.slug() == s).ok_or(RunError::UnknownMethod(s))
+    }
+
+    /// Whether the method learns from labelled windows (and so depends on the seed beyond the data).
+    pub fn is_learning(self) -> bool {
+        matches!(self, Method::QuadFormer | Method::Svm | Method::Cnn | Method::Lstm)
+    }
+}
+
+/// The hyper-parameters of every method. Defaults are each method's own documented defaults.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MethodConfigs {
+    /// QUADFormer.
+    pub quadformer: QuadFormerConfig,
+    /// CUSUM.
+    pub cusum: CusumConfig,
+    /// SPRT.
+    pub sprt: SprtConfig,
+    /// BHT.
+    pub bht: BhtConfig,
+    /// SVM.
+    pub svm: SvmConfig,
+    /// CNN.
+    pub cnn: CnnConfig,
+    /// LSTM.
+    pub lstm: LstmConfig,
+    /// Chi-squared.
+    pub chi2: Chi2Config,
+    /// PX4-style gate.
+    pub px4_gate: Px4GateConfig,
+}
+
+impl MethodConfigs {
+    /// The configuration of the full run: every method's defaults, with per-epoch progress bars
+    /// off (the runner shows its own).
+    pub fn full() -> Self {
+        let mut c = Self::default();
+        c.quadformer.train.progress = false;
+        c.cnn.0.train.progress = false;
+        c.lstm.0.train.progress = false;
+        c
+    }
+
+    /// The configuration of `--quick`: small networks and few epochs, so the whole pipeline runs
+    /// in about a minute. Its numbers are a smoke test, not results.
+    pub fn quick() -> Self {
+        let mut c = Self::full();
+        c.quadformer = QuadFormerConfig::tiny(50);
+        c.quadformer.train.epochs = 2;
+        c.quadformer.train.max_windows_per_epoch = Some(256);
+        for nn in [&mut c.cnn.0, &mut c.lstm.0] {
+            nn.window = c.quadformer.window.clone();
+            nn.score_stride = 25;
+            nn.hidden = 16;
+            nn.train.epochs = 2;
+            nn.train.max_windows_per_epoch = Some(256);
+            nn.train.progress = false;
+        }
+        c.svm.max_train = 400;
+        c.svm.c_grid = vec![1.0];
+        c.svm.gamma_grid = vec![1.0];
+        c
+    }
+
+    /// A copy whose random parts (weights, shuffling, subsampling) are seeded by `seed`.
+    pub fn seeded(&self, seed: u64) -> Self {
+        let mut c = self.clone();
+        c.quadformer.train.seed = seed;
+        c.cnn.0.seed = seed;
+        c.cnn.0.train.seed = seed;
+        c.lstm.0.seed = seed;
+        c.lstm.0.train.seed = seed;
+        c.svm.seed = seed;
+        c
+    }
+
+    /// Canonical JSON of one method's configuration (hashed into the run cache key).
+    fn method_json(&self, method: Method) -> String {
+        let v = match method {
+            Method::QuadFormer => serde_json::to_string(&self.quadformer),
+            Method::Cusum => serde_json::to_string(&self.cusum),
+            Method::Sprt => serde_json::to_string(&self.sprt),
+            Method::Bht => serde_json::to_string(&self.bht),
+            Method::Svm => serde_json::to_string(&self.svm),
+            Method::Cnn => serde_json::to_string(&self.cnn),
+            Method::Lstm => serde_json::to_string(&self.lstm),
+            Method::Chi2 => serde_json::to_string(&self.chi2),
+            Method::Px4Gate => serde_json::to_string(&self.px4_gate),
+        };
+        v.unwrap_or_default()
+    }
+}
+
+/// A fitted detector and how long fitting took.
+pub struct Fitted {
+    /// The detector, thresholds chosen on validation.
+    pub detector: Box<dyn Detector>,
+    /// Wall-clock fit time in seconds.
+    pub train_s: f64,
+}
+
+fn fit_with<F>(method: Method, cfg: &F, train: &LabelledResidues, valid: &LabelledResidues) -> Result<Box<dyn Detector>>
+where
+    F: Fit,
+    F::Detector: 'static,
+{
+    cfg.fit(train, valid)
+        .map(|d| Box::new(d) as Box<dyn Detector>)
+        .map_err(|e| RunError::Fit { method: method.name(), msg: e.to_string() })
+}
+
+/// Fits `method` with `cfgs` (already [`MethodConfigs::seeded`]) on `train`, choosing its
+/// thresholds on `valid`.
+///
+/// # Errors
+/// [`RunError::Fit`] with the method's own error message.
+pub fn fit(method: Method, cfgs: &MethodConfigs, train: &LabelledResidues, valid: &LabelledResidues) -> Result<Fitted> {
+    let start = Instant::now();
+    let detector = match method {
+        Method::QuadFormer => fit_with(method, &cfgs.quadformer, train, valid)?,
+        Method::Cusum => fit_with(method, &cfgs.cusum, train, valid)?,
+        Method::Sprt => fit_with(method, &cfgs.sprt, train, valid)?,
+        Method::Bht => fit_with(method, &cfgs.bht, train, valid)?,
+        Method::Svm => fit_with(method, &cfgs.svm, train, valid)?,
+        Method::Cnn => fit_with(method, &cfgs.cnn, train, valid)?,
+        Method::Lstm => fit_with(method, &cfgs.lstm, train, valid)?,
+        Method::Chi2 => fit_with(method, &cfgs.chi2, train, valid)?,
+        Method::Px4Gate => fit_with(method, &cfgs.px4_gate, train, valid)?,
+    };
+    Ok(Fitted { detector, train_s: start.elapsed().as_secs_f64() })
+}
+
+/// Per-flight scores and alarms of a detector on a labelled split.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScoredSplit {
+    /// Scores, one vector per flight.
+    pub scores: Vec<Vec<f64>>,
+    /// Alarms at the fitted threshold, one vector per flight.
+    pub alarms: Vec<Vec<bool>>,
+    /// Wall-clock scoring time in seconds.
+    pub score_s: f64,
+}
+
+/// Scores every flight of `split` with a fitted detector.
+///
+/// # Errors
+/// [`RunError::Score`] with the detector's error.
+pub fn score_split(method: Method, detector: &dyn Detector, split: &LabelledResidues) -> Result<ScoredSplit> {
+    let start = Instant::now();
+    let mut scores = Vec::with_capacity(split.flights().len());
+    let mut alarms = Vec::with_capacity(split.flights().len());
+    let threshold = detector.threshold();
+    for f in split.flights() {
+        let s = detector.score(f.series()).map_err(|source| RunError::Score { method: method.name(), source })?;
+        alarms.push(s.iter().map(|&v| v > threshold).collect());
+        scores.push(s);
+    }
+    Ok(ScoredSplit { scores, alarms, score_s: start.elapsed().as_secs_f64() })
+}
+
+/// One finished run: its metrics and a thinned ROC curve for plotting.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunRecord {
+    /// Hash of everything that determined the run (see [`run_key`]).
+    pub key: String,
+    /// Every metric.
+    pub result: RunResult,
+    /// ROC curve as `(false-positive rate, true-positive rate)` points, at most 200.
+    pub roc: Vec<(f64, f64)>,
+}
+
+/// Computes the metrics of a scored test split.
+///
+/// # Errors
+/// [`RunError::UnlabelledTest`] if a test flight has no labels; [`RunError::Metrics`].
+pub fn run_record(
+    key: String,
+    cell: Cell,
+    method: Method,
+    seed: u64,
+    test: &LabelledResidues,
+    scored: &ScoredSplit,
+    train_s: f64,
+) -> Result<RunRecord> {
+    let mut outcomes = Vec::with_capacity(test.flights().len());
+    for (flight_idx, ((f, scores), alarms)) in test.flights().iter().zip(&scored.scores).zip(&scored.alarms).enumerate() {
+        let labels = f.labels().ok_or(RunError::UnlabelledTest { flight_idx })?;
+        outcomes.push(FlightOutcome { t: f.series().t(), scores, alarms, labels });
+    }
+    let e = evaluate(&outcomes).map_err(|source| RunError::Metrics { method: method.name(), cell, source })?;
+    let result = RunResult {
+        model: cell.model,
+        noise: cell.noise,
+        attack: cell.attack,
+        method: method.name().to_owned(),
+        seed,
+        precision: e.precision(),
+        recall: e.recall(),
+        f1: e.f1(),
+        roc_auc: e.roc.auc(),
+        pr_auc: e.roc.average_precision(),
+        delay_median_s: e.delays.median_s(),
+        delay_p90_s: e.delays.p90_s(),
+        n_intervals: e.delays.n_intervals as u64,
+        n_missed: e.delays.n_missed as u64,
+        false_alarms_per_min: e.false_alarms.per_minute(),
+        n_test_steps: test.n_steps() as u64,
+        train_s,
+        score_s: scored.score_s,
+    };
+    let points = e.roc.points();
+    let stride = points.len().div_ceil(ROC_POINTS_KEPT).max(1);
+    let mut roc: Vec<(f64, f64)> = points.iter().step_by(stride).map(|p| (p.fpr, p.tpr)).collect();
+    if let Some(last) = points.last() {
+        if roc.last() != Some(&(last.fpr, last.tpr)) {
+            roc.push((last.fpr, last.tpr));
+        }
+    }
+    Ok(RunRecord { key, result, roc })
+}
+
+/// The cache key of a run: SHA-256 over the crate version, the dataset key, the method and its
+/// seeded configuration.
+pub fn run_key(dataset_key: &str, method: Method, cfgs: &MethodConfigs) -> String {
+    let mut h = Sha256::new();
+    h.update(env!("CARGO_PKG_VERSION").as_bytes());
+    h.update([0]);
+    h.update(dataset_key.as_bytes());
+    h.update([0]);
+    h.update(method.slug().as_bytes());
+    h.update([0]);
+    h.update(cfgs.method_json(method).as_bytes());
+    let digest = h.finalize();
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Where the cached record of `(cell, method, seed)` lives under `cache_dir`.
+pub fn cache_path(cache_dir: &Path, cell: Cell, method: Method, seed: u64) -> PathBuf {
+    cache_dir.join(cell.slug()).join(format!("{}-seed{seed}.json", method.slug()))
+}
+
+/// Loads a cached record if it exists, parses, and has the expected key; anything else is a
+/// cache miss (a corrupt or stale file is recomputed, never trusted).
+pub fn load_cached(path: &Path, key: &str) -> Option<RunRecord> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let rec: RunRecord = serde_json::from_str(&text).ok()?;
+    (rec.key == key && rec.result.check().is_ok()).then_some(rec)
+}
+
+/// Writes a record atomically.
+///
+/// # Errors
+/// [`RunError::Cache`] naming the file.
+pub fn store_cached(path: &Path, rec: &RunRecord) -> Result<()> {
+    let cache_err = |msg: String| RunError::Cache { path: path.to_owned(), msg };
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| cache_err(e.to_string()))?;
+    }
+    let text = serde_json::to_string_pretty(rec).map_err(|e| cache_err(e.to_string()))?;
+    write_text_atomic(path, &text).map_err(|e| cache_err(e.to_string()))
+}
+
+/// Fits, scores and evaluates one `(cell, method, seed)`, or returns its cached record.
+///
+/// # Errors
+/// As [`fit`], [`score_split`], [`run_record`] and [`store_cached`].
+#[allow(clippy::too_many_arguments)]
+pub fn run_one(
+    cache_dir: &Path,
+    dataset_key: &str,
+    cell: Cell,
+    method: Method,
+    seed: u64,
+    cfgs: &MethodConfigs,
+    splits: Splits<'_>,
+) -> Result<RunRecord> {
+    let cfgs = cfgs.seeded(seed);
+    let key = run_key(dataset_key, method, &cfgs);
+    let path = cache_path(cache_dir, cell, method, seed);
+    if let Some(rec) = load_cached(&path, &key) {
+        return Ok(rec);
+    }
+    let fitted = fit(method, &cfgs, splits.train, splits.valid)?;
+    let scored = score_split(method, fitted.detector.as_ref(), splits.test)?;
+    let rec = run_record(key, cell, method, seed, splits.test, &scored, fitted.train_s)?;
+    store_cached(&path, &rec)?;
+    Ok(rec)
+}
+
+/// The three splits of one cell.
+#[derive(Debug, Clone, Copy)]
+pub struct Splits<'a> {
+    /// Training flights (labels on a fraction of them).
+    pub train: &'a LabelledResidues,
+    /// Validation flights (labelled; thresholds and early stopping only).
+    pub valid: &'a LabelledResidues,
+    /// Test flights (labelled; scored once).
+    pub test: &'a LabelledResidues,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn method_names_round_trip_and_match_the_tables() {
+        for m in Method::ALL {
+            assert_eq!(Method::parse(m.slug()).unwrap(), m);
+            assert!(crate::table::METHOD_ORDER.iter().any(|(name, _)| *name == m.name()), "{m:?}");
+        }
+        assert!(matches!(Method::parse("nope"), Err(RunError::UnknownMethod(_))));
+    }
+
+    #[test]
+    fn run_key_depends_on_seed_and_method() {
+        let c = MethodConfigs::quick();
+        let a = run_key("d", Method::QuadFormer, &c.seeded(0));
+        let b = run_key("d", Method::QuadFormer, &c.seeded(1));
+        let s = run_key("d", Method::Cusum, &c.seeded(0));
+        assert_ne!(a, b);
+        assert_ne!(a, s);
+        assert_eq!(s, run_key("d", Method::Cusum, &c.seeded(1)), "statistical configs have no seed");
+    }
+}
