@@ -54,6 +54,8 @@
 #![warn(missing_docs)]
 
 pub mod alloc;
+pub mod checkpoint;
+pub mod detector;
 pub mod error;
 pub mod init;
 pub mod model;
@@ -61,7 +63,11 @@ pub mod train;
 pub mod window;
 
 pub use alloc::tune_allocator;
+pub use detector::{
+    ModeResult, OnlineQuadFormer, QuadFormerConfig, QuadFormerDetector, RawScores, ScoreConfig, ScoreMode,
+};
 pub use error::{ModelError, Result};
 pub use init::init_vars_seeded;
-pub use train::{train, EpochStats, TrainConfig, TrainReport, TrainableModel};
+pub use model::{LossConfig, MinMax, NetConfig, Prior, QuadFormerNet};
+pub use train::{EpochStats, TrainConfig, TrainReport, TrainableModel, train};
 pub use window::{Batch, Normaliser, SeriesWindows, WindowConfig, Windows};

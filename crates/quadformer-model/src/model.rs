@@ -77,7 +77,17 @@ pub struct NetConfig {
 
 impl Default for NetConfig {
     fn default() -> Self {
-        Self { d_model: 64, n_heads: 1, n_layers: 3, d_ff: 128, d_class: 32, p: 2.0, gamma_init: 0.1, prior: Prior::Tpc, dcm: true }
+        Self {
+            d_model: 64,
+            n_heads: 1,
+            n_layers: 3,
+            d_ff: 128,
+            d_class: 32,
+            p: 2.0,
+            gamma_init: 0.1,
+            prior: Prior::Tpc,
+            dcm: true,
+        }
     }
 }
 
@@ -88,8 +98,11 @@ impl NetConfig {
     /// [`ModelError::Config`] naming the field.
     pub fn check(&self) -> Result<()> {
         let bad = |field: &'static str, msg: String| Err(ModelError::Config { field, msg });
-        if self.d_model == 0 || self.n_heads == 0 || self.d_model % self.n_heads != 0 {
-            return bad("net.d_model", format!("{} must be a positive multiple of n_heads {}", self.d_model, self.n_heads));
+        if self.d_model == 0 || self.n_heads == 0 || !self.d_model.is_multiple_of(self.n_heads) {
+            return bad(
+                "net.d_model",
+                format!("{} must be a positive multiple of n_heads {}", self.d_model, self.n_heads),
+            );
         }
         if self.n_layers == 0 || self.d_ff == 0 || self.d_class == 0 {
             return bad("net.n_layers", "n_layers, d_ff and d_class must be positive".into());
@@ -206,7 +219,10 @@ struct Norm {
 
 impl Norm {
     fn new(d: usize, vb: VarBuilder) -> candle_core::Result<Self> {
-        Ok(Self { gain: vb.get_with_hints(d, "weight", Init::Const(1.0))?, bias: vb.get_with_hints(d, "bias", Init::Const(0.0))? })
+        Ok(Self {
+            gain: vb.get_with_hints(d, "weight", Init::Const(1.0))?,
+            bias: vb.get_with_hints(d, "bias", Init::Const(0.0))?,
+        })
     }
 
     fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
@@ -264,7 +280,10 @@ impl QuadFormerNet {
     pub fn new(cfg: &NetConfig, len: usize, dim: usize, seed: u64) -> Result<Self> {
         cfg.check()?;
         if len < 2 || dim == 0 {
-            return Err(ModelError::Config { field: "window.len", msg: format!("need l ≥ 2 and m ≥ 1, got l={len}, m={dim}") });
+            return Err(ModelError::Config {
+                field: "window.len",
+                msg: format!("need l ≥ 2 and m ≥ 1, got l={len}, m={dim}"),
+            });
         }
         let dev = Device::Cpu;
         let varmap = VarMap::new();
@@ -276,7 +295,9 @@ impl QuadFormerNet {
             let vl = vb.pp(format!("layers.{h}"));
             let va = vl.pp("attn");
             let (log_gamma, sigma) = match cfg.prior {
-                Prior::Tpc => (Some(va.get_with_hints((cfg.n_heads, len), "log_gamma", Init::Const(cfg.gamma_init.ln()))?), None),
+                Prior::Tpc => {
+                    (Some(va.get_with_hints((cfg.n_heads, len), "log_gamma", Init::Const(cfg.gamma_init.ln()))?), None)
+                }
                 Prior::Gaussian => (None, Some(candle_nn::linear(d, cfg.n_heads, va.pp("sigma"))?)),
             };
             layers.push(Layer {
@@ -406,8 +427,14 @@ impl QuadFormerNet {
         let (d, heads) = (self.cfg.d_model, self.cfg.n_heads);
         let dh = d / heads;
         let scale = 1.0 / (dh as f64).sqrt();
-        let mut h = self.embed.forward(&x.reshape((b * l, m))?)?.reshape((b, l, d))?.broadcast_add(&self.pos)?.reshape((b * l, d))?;
-        let split = |t: Tensor| -> candle_core::Result<Tensor> { t.reshape((b, l, heads, dh))?.transpose(1, 2)?.contiguous() };
+        let mut h = self
+            .embed
+            .forward(&x.reshape((b * l, m))?)?
+            .reshape((b, l, d))?
+            .broadcast_add(&self.pos)?
+            .reshape((b * l, d))?;
+        let split =
+            |t: Tensor| -> candle_core::Result<Tensor> { t.reshape((b, l, heads, dh))?.transpose(1, 2)?.contiguous() };
         let mut k_prev: Option<Tensor> = None;
         let mut prior = Vec::with_capacity(self.layers.len());
         let mut attn = Vec::with_capacity(self.layers.len());

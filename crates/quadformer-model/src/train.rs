@@ -199,7 +199,9 @@ pub fn train<M: TrainableModel + ?Sized>(
     let batches_per_epoch = per_epoch.div_ceil(cfg.batch_size);
     let pb = if cfg.progress {
         let pb = ProgressBar::new((cfg.epochs * batches_per_epoch) as u64);
-        if let Ok(style) = ProgressStyle::with_template("{prefix} [{elapsed_precise}] {wide_bar} {pos}/{len} batches {msg}") {
+        if let Ok(style) =
+            ProgressStyle::with_template("{prefix} [{elapsed_precise}] {wide_bar} {pos}/{len} batches {msg}")
+        {
             pb.set_style(style);
         }
         pb.set_prefix("training");
@@ -231,7 +233,9 @@ pub fn train<M: TrainableModel + ?Sized>(
                 let loss = model.loss(&batch, phase)?;
                 let v = f64::from(loss.to_scalar::<f32>()?);
                 if !v.is_finite() {
-                    return Err(ModelError::Numerical { what: format!("loss {v} at epoch {epoch}, batch {b}, phase {phase}") });
+                    return Err(ModelError::Numerical {
+                        what: format!("loss {v} at epoch {epoch}, batch {b}, phase {phase}"),
+                    });
                 }
                 if phase == 0 {
                     loss_sum += v;
@@ -245,7 +249,8 @@ pub fn train<M: TrainableModel + ?Sized>(
         let train_seconds = t0.elapsed().as_secs_f64();
         report.train_seconds += train_seconds;
         let valid_metric = valid(model)?;
-        let stats = EpochStats { epoch, train_loss: loss_sum / batches_per_epoch.max(1) as f64, valid_metric, train_seconds };
+        let stats =
+            EpochStats { epoch, train_loss: loss_sum / batches_per_epoch.max(1) as f64, valid_metric, train_seconds };
         let line = format!("epoch {epoch}: train loss {:.5}, valid metric {:.5}", stats.train_loss, stats.valid_metric);
         pb.set_message(line.clone());
         if cfg.progress {
@@ -300,7 +305,8 @@ mod tests {
         let n = n_win * 10;
         let labels: Vec<bool> = (0..n).map(|k| k % 7 == 0).collect();
         let r: Vec<f64> = labels.iter().map(|&a| if a { 3.0 } else { -1.0 }).collect();
-        let s = ResidueSeries::from_flat((0..n).map(|k| k as f64).collect(), vec!["a".into()], r, vec![1.0; n]).unwrap();
+        let s =
+            ResidueSeries::from_flat((0..n).map(|k| k as f64).collect(), vec!["a".into()], r, vec![1.0; n]).unwrap();
         let split = LabelledResidues::new(vec![LabelledSeries::new(s, Some(labels)).unwrap()]).unwrap();
         let norm = crate::window::Normaliser::fit(&split).unwrap();
         Windows::from_split(&split, &norm, &crate::window::WindowConfig { len: 10, stride: 10 }).unwrap()
@@ -312,7 +318,8 @@ mod tests {
         let model = PerStep { lin: candle_nn::linear(1, 1, vb).unwrap() };
         init_vars_seeded(&vm, seed).unwrap();
         let w = toy(8);
-        let cfg = TrainConfig { epochs: 4, batch_size: 3, lr: 0.1, lr_decay: 1.0, progress: false, ..Default::default() };
+        let cfg =
+            TrainConfig { epochs: 4, batch_size: 3, lr: 0.1, lr_decay: 1.0, progress: false, ..Default::default() };
         let wv = w.clone();
         let mut valid = |m: &PerStep| -> Result<f64> {
             let b = wv.batch(&(0..wv.len()).collect::<Vec<_>>(), &Device::Cpu)?;
@@ -327,7 +334,13 @@ mod tests {
         let (a, wa) = run(3);
         let (b, wb) = run(3);
         assert_eq!(wa, wb);
-        assert_eq!(a.history, b.history.iter().map(|h| EpochStats { train_seconds: a.history[h.epoch - 1].train_seconds, ..h.clone() }).collect::<Vec<_>>());
+        assert_eq!(
+            a.history,
+            b.history
+                .iter()
+                .map(|h| EpochStats { train_seconds: a.history[h.epoch - 1].train_seconds, ..h.clone() })
+                .collect::<Vec<_>>()
+        );
         assert!(a.history.last().unwrap().valid_metric < a.history[0].train_loss);
         assert_eq!(a.steps, 4 * 3);
     }

@@ -47,7 +47,10 @@ impl WindowConfig {
     /// [`ModelError::Config`] naming the field.
     pub fn check(&self) -> Result<()> {
         if self.len < 2 {
-            return Err(ModelError::Config { field: "window.len", msg: format!("must be at least 2, got {}", self.len) });
+            return Err(ModelError::Config {
+                field: "window.len",
+                msg: format!("must be at least 2, got {}", self.len),
+            });
         }
         if self.stride == 0 {
             return Err(ModelError::Config { field: "window.stride", msg: "must be at least 1".into() });
@@ -236,12 +239,14 @@ impl Windows {
     ) -> Result<SeriesWindows> {
         norm.check_series(series)?;
         if norm.dim() != self.dim {
-            return Err(ModelError::Data { msg: format!("windows have {} channels, normaliser {}", self.dim, norm.dim()) });
+            return Err(ModelError::Data {
+                msg: format!("windows have {} channels, normaliser {}", self.dim, norm.dim()),
+            });
         }
-        if let Some(l) = labels {
-            if l.len() != series.len() {
-                return Err(ModelError::Data { msg: format!("{} labels for {} steps", l.len(), series.len()) });
-            }
+        if let Some(l) = labels
+            && l.len() != series.len()
+        {
+            return Err(ModelError::Data { msg: format!("{} labels for {} steps", l.len(), series.len()) });
         }
         let (l, m) = (self.len, self.dim);
         let sw = SeriesWindows::new(series.len(), l, stride);
@@ -257,11 +262,11 @@ impl Windows {
             let src = k.saturating_sub(sw.pad);
             let r_k = &series.r()[src * m..(src + 1) * m];
             norm.apply(r_k, &mut xs[k * m..(k + 1) * m]);
-            if k >= sw.pad {
-                if let Some(lab) = labels {
-                    ys[k] = if lab[src] { 1.0 } else { 0.0 };
-                    ms[k] = 1.0;
-                }
+            if k >= sw.pad
+                && let Some(lab) = labels
+            {
+                ys[k] = if lab[src] { 1.0 } else { 0.0 };
+                ms[k] = 1.0;
             }
         }
         for &s0 in &sw.starts {

@@ -1,0 +1,477 @@
+//! QUADFormer as an `ekf_residue` [`Fit`]/[`Detector`]/[`OnlineDetector`]: training with
+//! min-max (sec:attack_detector), the scoring modes of alg:alg2 and the Anomaly Transformer,
+//! and threshold/mode choice on the validation split.
+//!
+//! Scoring modes (per window of `l` steps, then stitched per step, [`crate::window`]):
+//! - [`ScoreMode::Alg2`]: `softmax(−TCD)` over the window, as alg:alg2 writes it;
+//! - [`ScoreMode::AnomalyTransformer`]: `softmax(−τ·TCD) ⊙ e`, `e_i = mean_c (R̂_ic − R_ic)²`,
+//!   the Anomaly Transformer criterion (temperature `τ` = 50 there);
+//! - [`ScoreMode::Classifier`]: the classification head's probability `σ(logit)`;
+//! - [`ScoreMode::Combined`]: `½·p + ½·a/(a + a₅₀)` with `a` the Anomaly Transformer criterion
+//!   and `a₅₀` its median on the validation split, so both halves lie in `[0, 1]`.
+//!
+//! Every mode's best-F1 threshold and F1 on the validation split are kept
+//! ([`QuadFormerDetector::mode_results`], the ablation table); the mode with the best
+//! validation F1 is used unless one is forced. Early stopping uses the same validation F1.
+
+use std::collections::VecDeque;
+
+use candle_core::{D, Device, Tensor};
+use ekf_residue::{
+    DetectError, Detector, Fit, LabelledResidues, OnlineDecision, OnlineDetector, ResidueError, ResidueSeries,
+    ResidueStep, best_f1_threshold, check_channels,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{ModelError, Result};
+use crate::model::{LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet};
+use crate::train::{TrainConfig, TrainReport, train};
+use crate::window::{Normaliser, WindowConfig, Windows};
+
+/// How per-step scores are formed from the network outputs (module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum ScoreMode {
+    /// `softmax(−TCD)` over the window (alg:alg2).
+    Alg2,
+    /// `softmax(−τ·TCD)` times the reconstruction error (Anomaly Transformer).
+    AnomalyTransformer,
+    /// Classification-head probability.
+    Classifier,
+    /// Mean of the probability and the squashed Anomaly Transformer criterion.
+    Combined,
+}
+
+impl ScoreMode {
+    /// All modes, in the order used to break ties.
+    pub const ALL: [ScoreMode; 4] =
+        [ScoreMode::Combined, ScoreMode::Classifier, ScoreMode::AnomalyTransformer, ScoreMode::Alg2];
+
+    /// Short name for tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            ScoreMode::Alg2 => "softmax(-TCD)",
+            ScoreMode::AnomalyTransformer => "AT criterion",
+            ScoreMode::Classifier => "classifier",
+            ScoreMode::Combined => "combined",
+        }
+    }
+}
+
+/// Scoring settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScoreConfig {
+    /// Temperature `τ` of the Anomaly Transformer criterion. Default 50 (Anomaly Transformer
+    /// `solver.test`).
+    pub temperature: f64,
+    /// Steps between windows when scoring a whole series (scores of overlapping windows are
+    /// averaged). Default 10 (docs/decisions/041-window-stride.md).
+    pub stride: usize,
+    /// Use this mode instead of choosing on validation F1. Default `None`.
+    pub mode: Option<ScoreMode>,
+    /// Windows per inference batch. Default 64 (memory bound, not a model choice).
+    pub batch_size: usize,
+}
+
+impl Default for ScoreConfig {
+    fn default() -> Self {
+        Self { temperature: 50.0, stride: 10, mode: None, batch_size: 64 }
+    }
+}
+
+/// Everything needed to train a QUADFormer detector ([`Fit`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct QuadFormerConfig {
+    /// Window length and training stride.
+    pub window: WindowConfig,
+    /// Architecture.
+    pub net: NetConfig,
+    /// Loss weights and min-max schedule.
+    pub loss: LossConfig,
+    /// Training loop (its `seed` also seeds the weights).
+    pub train: TrainConfig,
+    /// Scoring.
+    pub score: ScoreConfig,
+}
+
+impl QuadFormerConfig {
+    /// A small configuration for tests and quick runs: `l` = `len`, `d_model` 16, 2 layers.
+    pub fn tiny(len: usize) -> Self {
+        let stride = (len / 4).max(1);
+        Self {
+            window: WindowConfig { len, stride },
+            net: NetConfig { d_model: 16, n_layers: 2, d_ff: 32, d_class: 16, ..NetConfig::default() },
+            train: TrainConfig { progress: false, ..TrainConfig::default() },
+            score: ScoreConfig { stride, ..ScoreConfig::default() },
+            ..Self::default()
+        }
+    }
+
+    /// Checks every part.
+    ///
+    /// # Errors
+    /// [`ModelError::Config`] naming the field.
+    pub fn check(&self) -> Result<()> {
+        self.window.check()?;
+        self.net.check()?;
+        self.train.check()?;
+        let l = &self.loss;
+        for (field, v) in [("loss.lambda", l.lambda), ("loss.alpha1", l.alpha1), ("loss.alpha2", l.alpha2)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(ModelError::Config { field, msg: format!("must be finite and non-negative, got {v}") });
+            }
+        }
+        if !(self.score.temperature.is_finite() && self.score.temperature > 0.0) {
+            return Err(ModelError::Config { field: "score.temperature", msg: "must be finite and positive".into() });
+        }
+        if self.score.stride == 0 || self.score.batch_size == 0 {
+            return Err(ModelError::Config {
+                field: "score.stride",
+                msg: "stride and batch_size must be at least 1".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Validation result of one scoring mode.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModeResult {
+    /// The mode.
+    pub mode: ScoreMode,
+    /// Best-F1 threshold on the validation split.
+    pub threshold: f64,
+    /// Per-step F1 at that threshold on the validation split.
+    pub valid_f1: f64,
+}
+
+/// Per-step scores of the three raw modes for one series.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct RawScores {
+    /// `softmax(−TCD)`.
+    pub alg2: Vec<f64>,
+    /// Anomaly Transformer criterion.
+    pub at: Vec<f64>,
+    /// Classifier probability.
+    pub class: Vec<f64>,
+}
+
+impl RawScores {
+    /// The scores of `mode`; `crit_scale` is `a₅₀` of [`ScoreMode::Combined`].
+    pub fn mode(&self, mode: ScoreMode, crit_scale: f64) -> Vec<f64> {
+        match mode {
+            ScoreMode::Alg2 => self.alg2.clone(),
+            ScoreMode::AnomalyTransformer => self.at.clone(),
+            ScoreMode::Classifier => self.class.clone(),
+            ScoreMode::Combined => self.class.iter().zip(&self.at).map(|(p, a)| combine(*p, *a, crit_scale)).collect(),
+        }
+    }
+}
+
+fn combine(p: f64, a: f64, crit_scale: f64) -> f64 {
+    0.5 * p + 0.5 * a / (a + crit_scale)
+}
+
+/// Per-window per-step raw scores `(alg2, at, class)`, each `b·l` row-major.
+fn window_scores(net: &QuadFormerNet, x: &Tensor, temperature: f64) -> candle_core::Result<[Vec<f32>; 3]> {
+    let out = net.forward(x)?;
+    let neg_tcd = QuadFormerNet::tcd(&out, false, false)?.neg()?;
+    let alg2 = candle_nn::ops::softmax(&neg_tcd, D::Minus1)?;
+    let err = (&out.r_hat - x)?.sqr()?.mean(D::Minus1)?;
+    let at = (candle_nn::ops::softmax(&(neg_tcd * temperature)?, D::Minus1)? * err)?;
+    let class = candle_nn::ops::sigmoid(&out.logits)?;
+    Ok([alg2.flatten_all()?.to_vec1()?, at.flatten_all()?.to_vec1()?, class.flatten_all()?.to_vec1()?])
+}
+
+/// Stitched raw scores of a whole series.
+fn raw_scores(
+    net: &QuadFormerNet,
+    norm: &Normaliser,
+    score: &ScoreConfig,
+    series: &ResidueSeries,
+) -> Result<RawScores> {
+    let mut windows = Windows::empty(net.window_len(), net.dim());
+    let sw = windows.push_series(series, None, norm, score.stride)?;
+    let mut acc: [Vec<f32>; 3] = Default::default();
+    let idx: Vec<usize> = (0..windows.len()).collect();
+    for chunk in idx.chunks(score.batch_size) {
+        let batch = windows.batch(chunk, &Device::Cpu)?;
+        let parts = window_scores(net, &batch.x, score.temperature)?;
+        for (a, p) in acc.iter_mut().zip(parts) {
+            a.extend(p);
+        }
+    }
+    let [alg2, at, class] = acc;
+    Ok(RawScores { alg2: sw.stitch(&alg2)?, at: sw.stitch(&at)?, class: sw.stitch(&class)? })
+}
+
+/// Validation calibration: `a₅₀` and every mode's threshold and F1.
+struct Calibration {
+    crit_scale: f64,
+    results: Vec<ModeResult>,
+}
+
+fn calibrate(
+    net: &QuadFormerNet,
+    norm: &Normaliser,
+    score: &ScoreConfig,
+    valid: &LabelledResidues,
+) -> Result<Calibration> {
+    let mut scored: Vec<(RawScores, &[bool])> = Vec::new();
+    for (series, labels) in valid.labelled() {
+        scored.push((raw_scores(net, norm, score, series)?, labels));
+    }
+    let mut all_at: Vec<f64> = scored.iter().flat_map(|(s, _)| s.at.iter().copied()).collect();
+    if all_at.iter().any(|v| !v.is_finite()) {
+        return Err(ModelError::Numerical { what: "non-finite anomaly criterion on the validation split".into() });
+    }
+    all_at.sort_by(f64::total_cmp);
+    let crit_scale = all_at.get(all_at.len() / 2).copied().unwrap_or(1.0).max(f64::MIN_POSITIVE);
+    let mut results = Vec::with_capacity(ScoreMode::ALL.len());
+    for mode in ScoreMode::ALL {
+        let per_flight: Vec<Vec<f64>> = scored.iter().map(|(s, _)| s.mode(mode, crit_scale)).collect();
+        let (threshold, valid_f1) =
+            best_f1_threshold(per_flight.iter().zip(&scored).map(|(s, (_, l))| (s.as_slice(), *l)))?;
+        results.push(ModeResult { mode, threshold, valid_f1 });
+    }
+    Ok(Calibration { crit_scale, results })
+}
+
+fn chosen(results: &[ModeResult], forced: Option<ScoreMode>) -> Result<ModeResult> {
+    let pick = match forced {
+        Some(m) => results.iter().find(|r| r.mode == m),
+        // First of the best in `ScoreMode::ALL` order.
+        None => results.iter().fold(None::<&ModeResult>, |best, r| match best {
+            Some(b) if b.valid_f1 >= r.valid_f1 => Some(b),
+            _ => Some(r),
+        }),
+    };
+    pick.copied().ok_or_else(|| ModelError::Data { msg: "no scoring mode could be calibrated".into() })
+}
+
+/// A fitted QUADFormer detector.
+pub struct QuadFormerDetector {
+    pub(crate) config: QuadFormerConfig,
+    pub(crate) net: QuadFormerNet,
+    pub(crate) norm: Normaliser,
+    pub(crate) chosen: ModeResult,
+    pub(crate) crit_scale: f64,
+    pub(crate) mode_results: Vec<ModeResult>,
+    pub(crate) report: Option<TrainReport>,
+}
+
+impl std::fmt::Debug for QuadFormerDetector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("QuadFormerDetector")
+            .field("channels", &self.norm.channels)
+            .field("chosen", &self.chosen)
+            .field("n_params", &self.net.n_params())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Fit for QuadFormerConfig {
+    type Detector = QuadFormerDetector;
+    type Error = ModelError;
+
+    fn fit(&self, train_split: &LabelledResidues, valid: &LabelledResidues) -> Result<QuadFormerDetector> {
+        self.check()?;
+        if train_split.n_steps() == 0 {
+            return Err(ModelError::Data { msg: "empty training split".into() });
+        }
+        if valid.channels() != train_split.channels() {
+            return Err(DetectError::ChannelMismatch {
+                expected: train_split.channels().to_vec(),
+                got: valid.channels().to_vec(),
+            }
+            .into());
+        }
+        if !valid.labelled().any(|(_, l)| l.iter().any(|&a| a)) {
+            return Err(ModelError::Data {
+                msg: "the validation split needs labelled flights with attacks to choose the mode and threshold".into(),
+            });
+        }
+        let norm = Normaliser::fit(train_split)?;
+        let windows = Windows::from_split(train_split, &norm, &self.window)?;
+        let mut net = QuadFormerNet::new(&self.net, self.window.len, norm.dim(), self.train.seed)?;
+        let report = {
+            let trainer = MinMaxTrainer { net: &net, loss: self.loss };
+            let mut valid_metric = |t: &MinMaxTrainer<'_>| -> Result<f64> {
+                let cal = calibrate(t.net, &norm, &self.score, valid)?;
+                Ok(-chosen(&cal.results, self.score.mode)?.valid_f1)
+            };
+            train(&trainer, net.varmap(), &windows, &self.train, &mut valid_metric)?
+        };
+        net.freeze()?;
+        let cal = calibrate(&net, &norm, &self.score, valid)?;
+        let chosen = chosen(&cal.results, self.score.mode)?;
+        Ok(QuadFormerDetector {
+            config: self.clone(),
+            net,
+            norm,
+            chosen,
+            crit_scale: cal.crit_scale,
+            mode_results: cal.results,
+            report: Some(report),
+        })
+    }
+}
+
+impl QuadFormerDetector {
+    /// The configuration it was trained with.
+    pub fn config(&self) -> &QuadFormerConfig {
+        &self.config
+    }
+
+    /// The network.
+    pub fn net(&self) -> &QuadFormerNet {
+        &self.net
+    }
+
+    /// The normaliser fitted on the training split.
+    pub fn normaliser(&self) -> &Normaliser {
+        &self.norm
+    }
+
+    /// The scoring mode in use, its threshold and validation F1.
+    pub fn chosen(&self) -> ModeResult {
+        self.chosen
+    }
+
+    /// Every mode's validation threshold and F1 (ablation table).
+    pub fn mode_results(&self) -> &[ModeResult] {
+        &self.mode_results
+    }
+
+    /// The training history (`None` for a loaded checkpoint).
+    pub fn train_report(&self) -> Option<&TrainReport> {
+        self.report.as_ref()
+    }
+
+    /// Stitched raw scores of a series (all modes at once).
+    ///
+    /// # Errors
+    /// Channel mismatch; candle errors.
+    pub fn raw_scores(&self, series: &ResidueSeries) -> Result<RawScores> {
+        raw_scores(&self.net, &self.norm, &self.config.score, series)
+    }
+
+    /// Per-step scores of `series` in every mode, with each mode's validation threshold.
+    ///
+    /// # Errors
+    /// As [`QuadFormerDetector::raw_scores`].
+    pub fn scores_by_mode(&self, series: &ResidueSeries) -> Result<Vec<(ModeResult, Vec<f64>)>> {
+        let raw = self.raw_scores(series)?;
+        Ok(self.mode_results.iter().map(|r| (*r, raw.mode(r.mode, self.crit_scale))).collect())
+    }
+
+    /// A streaming detector ([`OnlineQuadFormer`]).
+    pub fn online_quadformer(&self) -> OnlineQuadFormer<'_> {
+        OnlineQuadFormer::new(self)
+    }
+}
+
+impl Detector for QuadFormerDetector {
+    fn name(&self) -> &str {
+        "QUADFormer"
+    }
+
+    fn channels(&self) -> &[String] {
+        &self.norm.channels
+    }
+
+    fn score(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
+        check_channels(&self.norm.channels, series)?;
+        Ok(self.raw_scores(series)?.mode(self.chosen.mode, self.crit_scale))
+    }
+
+    fn threshold(&self) -> f64 {
+        self.chosen.threshold
+    }
+
+    fn online(&self) -> Box<dyn OnlineDetector + '_> {
+        Box::new(self.online_quadformer())
+    }
+
+    fn online_window(&self) -> usize {
+        self.net.window_len()
+    }
+}
+
+/// Streaming QUADFormer: keeps the last `l` normalised residues and scores each new step as the
+/// last position of the window that ends at it (causal; a batch [`Detector::score`] averages
+/// over all windows covering a step, so the two differ slightly). Until `l` steps have been
+/// seen the window is padded at the front with the first step, as in [`crate::window`].
+pub struct OnlineQuadFormer<'a> {
+    det: &'a QuadFormerDetector,
+    rows: VecDeque<Vec<f32>>,
+    x: Vec<f32>,
+    n_seen: usize,
+}
+
+impl<'a> OnlineQuadFormer<'a> {
+    /// A streaming detector with empty history.
+    pub fn new(det: &'a QuadFormerDetector) -> Self {
+        let (l, m) = (det.net.window_len(), det.net.dim());
+        Self { det, rows: VecDeque::with_capacity(l + 1), x: vec![0.0; l * m], n_seen: 0 }
+    }
+
+    fn score_newest(&mut self) -> Result<f64> {
+        let (l, m) = (self.det.net.window_len(), self.det.net.dim());
+        let pad = l - self.rows.len();
+        for k in 0..l {
+            let row = &self.rows[k.saturating_sub(pad)];
+            self.x[k * m..(k + 1) * m].copy_from_slice(row);
+        }
+        let x = Tensor::from_slice(&self.x, (1, l, m), &Device::Cpu)?;
+        let [alg2, at, class] = window_scores(&self.det.net, &x, self.det.config.score.temperature)?;
+        let last = l - 1;
+        let pick = |v: &[f32]| f64::from(v[last]);
+        Ok(match self.det.chosen.mode {
+            ScoreMode::Alg2 => pick(&alg2),
+            ScoreMode::AnomalyTransformer => pick(&at),
+            ScoreMode::Classifier => pick(&class),
+            ScoreMode::Combined => combine(pick(&class), pick(&at), self.det.crit_scale),
+        })
+    }
+}
+
+impl OnlineDetector for OnlineQuadFormer<'_> {
+    fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
+        let m = self.det.net.dim();
+        if step.dim() != m {
+            return Err(
+                ResidueError::StepDim { step_idx: self.n_seen, what: "r_k", expected: m, got: step.dim() }.into()
+            );
+        }
+        if step.r_k.iter().any(|v| !v.is_finite()) {
+            return Err(ResidueError::NonFinite { step_idx: self.n_seen, what: "r_k" }.into());
+        }
+        let mut row = if self.rows.len() == self.det.net.window_len() {
+            self.rows.pop_front().unwrap_or_default()
+        } else {
+            Vec::new()
+        };
+        row.resize(m, 0.0);
+        self.det.norm.apply(step.r_k, &mut row);
+        self.rows.push_back(row);
+        self.n_seen += 1;
+        let score = self.score_newest()?;
+        if !score.is_finite() {
+            return Err(DetectError::Numerical {
+                what: format!("non-finite QUADFormer score at step {}", self.n_seen - 1),
+            });
+        }
+        Ok(OnlineDecision { score, alarm: score > self.det.chosen.threshold })
+    }
+
+    fn reset(&mut self) {
+        self.rows.clear();
+        self.n_seen = 0;
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,189 @@
+//! Tests of the fitted detector on small seeded synthetic residue series: Gaussian noise with
+//! constant offsets injected in labelled intervals (the shape of a GPS FDI attack's residue).
+
+use std::sync::OnceLock;
+
+use ekf_residue::LabelledSeries;
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+use rand_distr::{Distribution, Normal};
+
+use super::*;
+
+const M: usize = 3;
+const L: usize = 16;
+
+/// One flight of `n` steps: `N(0, 1)` residues, and `offset` added to all channels inside
+/// attack intervals of 12 steps every 60 steps.
+fn flight(n: usize, seed: u64, offset: f64, labelled: bool) -> LabelledSeries {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let normal = Normal::new(0.0, 1.0).unwrap();
+    let labels: Vec<bool> = (0..n).map(|k| (k + (seed as usize * 17) % 60) % 60 >= 48).collect();
+    let mut r = Vec::with_capacity(n * M);
+    for &a in &labels {
+        for _ in 0..M {
+            r.push(normal.sample(&mut rng) + if a { offset } else { 0.0 });
+        }
+    }
+    let s: Vec<f64> = (0..n).flat_map(|_| [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]).collect();
+    let channels = vec!["gps_x".to_string(), "gps_y".into(), "gps_z".into()];
+    let series = ResidueSeries::from_flat((0..n).map(|k| k as f64 * 0.1).collect(), channels, r, s).unwrap();
+    LabelledSeries::new(series, labelled.then_some(labels)).unwrap()
+}
+
+fn split(seeds: &[u64], n: usize, labelled: bool) -> LabelledResidues {
+    LabelledResidues::new(seeds.iter().map(|&s| flight(n, s, 4.0, labelled)).collect()).unwrap()
+}
+
+fn config() -> QuadFormerConfig {
+    let mut c = QuadFormerConfig::tiny(L);
+    c.train.epochs = 8;
+    c.train.lr = 3e-3;
+    c.train.lr_decay = 1.0;
+    c.train.patience = 8;
+    c.train.seed = 7;
+    c
+}
+
+fn fitted() -> &'static QuadFormerDetector {
+    static DET: OnceLock<QuadFormerDetector> = OnceLock::new();
+    DET.get_or_init(|| {
+        // Semi-supervised: one of three training flights is labelled.
+        let mut flights = split(&[1, 2], 240, false).flights().to_vec();
+        flights.push(flight(240, 3, 4.0, true));
+        let train = LabelledResidues::new(flights).unwrap();
+        config().fit(&train, &split(&[4], 240, true)).unwrap()
+    })
+}
+
+fn f1(det: &QuadFormerDetector, data: &LabelledResidues) -> f64 {
+    let mut c = ekf_residue::Confusion::default();
+    for (s, l) in data.labelled() {
+        c.add(ekf_residue::Confusion::count(&det.detect(s).unwrap(), l));
+    }
+    c.f1()
+}
+
+#[test]
+fn learns_to_detect_offsets_and_keeps_every_mode() {
+    let det = fitted();
+    let report = det.train_report().unwrap();
+    assert!(report.history.len() >= 2);
+    assert_eq!(det.mode_results().len(), 4);
+    assert!(det.mode_results().iter().all(|r| r.threshold.is_finite() && (0.0..=1.0).contains(&r.valid_f1)));
+    let test = split(&[5, 6], 240, true);
+    let f = f1(det, &test);
+    assert!(f > 0.8, "test F1 {f}, chosen {:?}, all {:?}", det.chosen(), det.mode_results());
+}
+
+#[test]
+fn overfits_a_tiny_labelled_set() {
+    let train = LabelledResidues::new(vec![flight(120, 9, 3.0, true)]).unwrap();
+    let mut cfg = config();
+    cfg.train.epochs = 25;
+    cfg.train.patience = 25;
+    cfg.score.mode = Some(ScoreMode::Classifier);
+    let det = cfg.fit(&train, &train).unwrap();
+    let hist = &det.train_report().unwrap().history;
+    assert!(hist.last().unwrap().train_loss < hist[0].train_loss);
+    assert!(det.chosen().valid_f1 > 0.95, "{:?}", det.chosen());
+}
+
+#[test]
+fn same_seed_same_detector() {
+    let train = split(&[11], 160, true);
+    let valid = split(&[12], 160, true);
+    let mut cfg = config();
+    cfg.train.epochs = 2;
+    let a = cfg.fit(&train, &valid).unwrap();
+    let b = cfg.fit(&train, &valid).unwrap();
+    let s = valid.flights()[0].series();
+    assert_eq!(a.raw_scores(s).unwrap(), b.raw_scores(s).unwrap());
+    assert_eq!(a.chosen(), b.chosen());
+}
+
+#[test]
+fn checkpoint_round_trip_gives_identical_scores() {
+    let det = fitted();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("qf.json");
+    det.save(&path).unwrap();
+    let back = QuadFormerDetector::load(&path).unwrap();
+    let s = flight(100, 21, 4.0, false);
+    assert_eq!(det.score(s.series()).unwrap(), back.score(s.series()).unwrap());
+    assert_eq!(det.chosen(), back.chosen());
+    assert_eq!(det.mode_results(), back.mode_results());
+}
+
+#[test]
+fn corrupt_truncated_and_mismatched_checkpoints_are_clear_errors() {
+    let det = fitted();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("qf.json");
+    det.save(&path).unwrap();
+    let weights = path.with_extension("safetensors");
+    let good_w = std::fs::read(&weights).unwrap();
+    let good_j = std::fs::read_to_string(&path).unwrap();
+    let expect_err = |needle: &str| {
+        let e = QuadFormerDetector::load(&path).unwrap_err();
+        assert!(e.to_string().contains(needle), "expected `{needle}` in: {e}");
+    };
+    std::fs::write(&weights, &good_w[..good_w.len() / 2]).unwrap();
+    expect_err("truncated");
+    let mut flipped = good_w.clone();
+    let last = flipped.len() - 3;
+    flipped[last] ^= 0x40;
+    std::fs::write(&weights, &flipped).unwrap();
+    expect_err("corrupted");
+    std::fs::write(&weights, &good_w).unwrap();
+    std::fs::write(&path, good_j.replace("\"d_model\": 16", "\"d_model\": 32")).unwrap();
+    expect_err("does not match the config");
+    std::fs::write(&path, good_j.replace("\"version\": 1", "\"version\": 99")).unwrap();
+    expect_err("version 99");
+    std::fs::write(&path, good_j.replacen('{', "{\"surprise\": 1,", 1)).unwrap();
+    expect_err("unknown field");
+    std::fs::write(&path, &good_j[..good_j.len() / 3]).unwrap();
+    expect_err("malformed manifest");
+    std::fs::remove_file(&weights).unwrap();
+    std::fs::write(&path, &good_j).unwrap();
+    assert!(matches!(QuadFormerDetector::load(&path), Err(ModelError::Io { .. })));
+}
+
+#[test]
+fn online_matches_batch_on_one_window_and_checks_input() {
+    let det = fitted();
+    let f = flight(L, 31, 4.0, false);
+    let batch = det.score(f.series()).unwrap();
+    let mut online = det.online();
+    let mut last = None;
+    for step in f.series().steps() {
+        last = Some(online.update(&step).unwrap());
+    }
+    let last = last.unwrap();
+    assert!((last.score - batch[L - 1]).abs() < 1e-6, "{} vs {}", last.score, batch[L - 1]);
+    assert_eq!(last.alarm, last.score > det.threshold());
+    let bad = ResidueStep { t: 0.0, r_k: &[1.0, 2.0], s_k: &[1.0, 0.0, 0.0, 1.0], nis: 5.0 };
+    assert!(matches!(online.update(&bad), Err(DetectError::Residue(_))));
+    online.reset();
+}
+
+#[test]
+fn wrong_channels_and_unlabelled_validation_are_errors() {
+    let det = fitted();
+    let other = flight(50, 1, 0.0, false).series().select_channels(&["gps_x", "gps_y"]).unwrap();
+    assert!(matches!(det.score(&other), Err(DetectError::ChannelMismatch { .. })));
+    let e = config().fit(&split(&[1], 100, true), &split(&[2], 100, false)).unwrap_err();
+    assert!(e.to_string().contains("validation split needs labelled"), "{e}");
+    let mut bad = config();
+    bad.net.d_model = 15;
+    bad.net.n_heads = 2;
+    assert!(matches!(bad.check(), Err(ModelError::Config { field: "net.d_model", .. })));
+}
+
+#[test]
+fn detectors_and_configs_are_send_sync() {
+    fn check<T: Send + Sync>() {}
+    check::<QuadFormerDetector>();
+    check::<QuadFormerConfig>();
+    check::<crate::window::Windows>();
+}
