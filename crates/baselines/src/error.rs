@@ -23,6 +23,9 @@ pub enum BaselineError {
         /// The solver's message.
         msg: String,
     },
+    /// Windowing or training shared with `quadformer-model` failed.
+    #[error(transparent)]
+    Model(#[from] quadformer_model::ModelError),
     /// The neural-network back end (candle) failed.
     #[error("candle failed in {context}: {msg}")]
     Candle {

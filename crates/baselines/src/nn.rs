@@ -1,0 +1,337 @@
+//! 1-D CNN and LSTM per-step classifiers in candle (the CNN and LSTM baselines of Wu et al.
+//! 2023 and Wang et al. 2020 in the paper's tables, fed residue windows as the paper does,
+//! sec:experiments).
+//!
+//! Both share QUADFormer's data path and loop (`quadformer_model`): per-channel
+//! [`Normaliser`] fitted on the labelled training flights, [`Windows`] of `l` steps × `m`
+//! channels (`b × l × m` tensors), the seeded AdamW [`train`] loop with early stopping on the
+//! validation BCE, [`init_vars_seeded`] for seeded initialisation, and
+//! [`SeriesWindows::stitch`] to turn per-window, per-step logits into one score per step (the
+//! mean over the covering windows). The loss is the masked per-step binary cross-entropy with
+//! logits; the alarm threshold on the stitched logit is chosen on the validation split (best
+//! F1). They train on the labelled flights only (the same subset as QUADFormer's
+//! classification head, DESIGN.md "Semi-supervision").
+//!
+//! Architectures (`b × l × m` in, `b × l` logits out):
+//! - CNN: `Conv1d(m→c, k) → ReLU → Conv1d(c→c, k) → ReLU → Conv1d(c→1, 1)`, with `c = 32`,
+//!   `k = 5` (the 2-layer Conv1d(32, k5) probe of shared/reference/rust-stack.md §3). The
+//!   convolutions are causal (`k − 1` zeros on the left only), so a step's logit depends on
+//!   the last `2k − 1` steps and the streaming detector (last step of the latest window) agrees
+//!   with the stitched batch score except where a window start cuts that history.
+//! - LSTM: one forward `LSTM(m→h)` over the window, `h = 64`, then `Linear(h→1)` on every
+//!   hidden state (rust-stack.md §3 LSTM probe). Only the past inside the window is seen.
+
+use candle_core::{D, DType, Device, Module, Tensor};
+use candle_nn::rnn::{LSTMConfig, RNN};
+use candle_nn::{Conv1d, Conv1dConfig, LSTM, Linear, VarBuilder, VarMap};
+use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
+use quadformer_model::model::masked_bce_with_logits;
+use quadformer_model::{
+    Batch, Normaliser, TrainConfig, TrainableModel, WindowConfig, Windows, init_vars_seeded, train,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::common::{fit_channels, labelled_valid};
+use crate::error::{BaselineError, Result};
+
+/// Windows per forward pass when scoring.
+const SCORE_BATCH: usize = 64;
+
+/// Hyper-parameters shared by the CNN and LSTM baselines.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NeuralConfig {
+    /// Window length and training stride. Default `quadformer_model::WindowConfig::default()`
+    /// (`l = 100`, stride 10), the same windows as QUADFormer.
+    pub window: WindowConfig,
+    /// Stride between windows when scoring a series (each step's score is the mean over its
+    /// covering windows). Default 50 (`l/2`: every step seen twice, half the cost of stride 25).
+    pub score_stride: usize,
+    /// Training loop. Default `quadformer_model::TrainConfig::default()`.
+    pub train: TrainConfig,
+    /// Channels of the CNN's hidden layers, or the LSTM's hidden size. Default 32 for the CNN,
+    /// 64 for the LSTM (rust-stack.md §3 probes).
+    pub hidden: usize,
+    /// CNN kernel size (unused by the LSTM). Default 5 (rust-stack.md §3 probe).
+    pub kernel: usize,
+    /// Seed of the initial weights. Default 0.
+    pub seed: u64,
+}
+
+/// Hyper-parameters of the CNN baseline.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CnnConfig(pub NeuralConfig);
+
+/// Hyper-parameters of the LSTM baseline.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LstmConfig(pub NeuralConfig);
+
+impl Default for CnnConfig {
+    fn default() -> Self {
+        Self(NeuralConfig {
+            window: WindowConfig::default(),
+            score_stride: 50,
+            train: TrainConfig::default(),
+            hidden: 32,
+            kernel: 5,
+            seed: 0,
+        })
+    }
+}
+
+impl Default for LstmConfig {
+    fn default() -> Self {
+        Self(NeuralConfig { hidden: 64, ..CnnConfig::default().0 })
+    }
+}
+
+/// A network that maps normalised windows `b × l × m` to per-step logits `b × l`.
+pub trait PerStepNet: Send + Sync {
+    /// Per-step logits.
+    ///
+    /// # Errors
+    /// Any candle error.
+    fn logits(&self, x: &Tensor) -> candle_core::Result<Tensor>;
+}
+
+/// The CNN of the module docs.
+#[derive(Debug, Clone)]
+pub struct CnnNet {
+    kernel: usize,
+    conv1: Conv1d,
+    conv2: Conv1d,
+    head: Conv1d,
+}
+
+impl CnnNet {
+    fn new(m: usize, c: usize, k: usize, vb: VarBuilder) -> candle_core::Result<Self> {
+        let valid = Conv1dConfig::default();
+        Ok(Self {
+            kernel: k,
+            conv1: candle_nn::conv1d(m, c, k, valid, vb.pp("conv1"))?,
+            conv2: candle_nn::conv1d(c, c, k, valid, vb.pp("conv2"))?,
+            head: candle_nn::conv1d(c, 1, 1, Conv1dConfig::default(), vb.pp("head"))?,
+        })
+    }
+}
+
+impl PerStepNet for CnnNet {
+    fn logits(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        // Conv1d wants b × channels × l; causal: k − 1 zeros on the left, none on the right.
+        let pad = self.kernel - 1;
+        let h = x.transpose(1, 2)?.pad_with_zeros(D::Minus1, pad, 0)?;
+        let h = self.conv1.forward(&h)?.relu()?.pad_with_zeros(D::Minus1, pad, 0)?;
+        let h = self.conv2.forward(&h)?.relu()?;
+        self.head.forward(&h)?.squeeze(1)
+    }
+}
+
+/// The LSTM of the module docs.
+#[derive(Debug, Clone)]
+pub struct LstmNet {
+    lstm: LSTM,
+    head: Linear,
+}
+
+impl LstmNet {
+    fn new(m: usize, h: usize, vb: VarBuilder) -> candle_core::Result<Self> {
+        Ok(Self {
+            lstm: candle_nn::lstm(m, h, LSTMConfig::default(), vb.pp("lstm"))?,
+            head: candle_nn::linear(h, 1, vb.pp("head"))?,
+        })
+    }
+}
+
+impl PerStepNet for LstmNet {
+    fn logits(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        let states = self.lstm.seq(&x.contiguous()?)?;
+        let h = self.lstm.states_to_tensor(&states)?;
+        self.head.forward(&h)?.squeeze(D::Minus1)
+    }
+}
+
+/// A fitted CNN or LSTM detector.
+pub struct NeuralDetector<N> {
+    name: &'static str,
+    channels: Vec<String>,
+    norm: Normaliser,
+    net: N,
+    // Keeps the trained variables alive alongside the network that reads them.
+    _varmap: VarMap,
+    window: WindowConfig,
+    score_stride: usize,
+    threshold: f64,
+    report: quadformer_model::TrainReport,
+}
+
+/// The fitted CNN baseline.
+pub type Cnn = NeuralDetector<CnnNet>;
+/// The fitted LSTM baseline.
+pub type Lstm = NeuralDetector<LstmNet>;
+
+impl<N> std::fmt::Debug for NeuralDetector<N> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("NeuralDetector")
+            .field("name", &self.name)
+            .field("channels", &self.channels)
+            .field("window", &self.window)
+            .field("threshold", &self.threshold)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<N: PerStepNet> NeuralDetector<N> {
+    /// The training report (epochs, losses, time) of the fit.
+    pub fn train_report(&self) -> &quadformer_model::TrainReport {
+        &self.report
+    }
+
+    fn score_inner(&self, series: &ResidueSeries) -> Result<Vec<f64>> {
+        let mut windows = Windows::empty(self.window.len, self.norm.dim());
+        let sw = windows.push_series(series, None, &self.norm, self.score_stride)?;
+        let mut logits = Vec::with_capacity(windows.len() * self.window.len);
+        let idx: Vec<usize> = (0..windows.len()).collect();
+        for chunk in idx.chunks(SCORE_BATCH) {
+            let batch = windows.batch(chunk, &Device::Cpu)?;
+            let z = self.net.logits(&batch.x).map_err(candle_err("scoring"))?;
+            logits.extend(z.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(candle_err("scoring"))?);
+        }
+        Ok(sw.stitch(&logits)?)
+    }
+}
+
+fn candle_err(context: &'static str) -> impl Fn(candle_core::Error) -> BaselineError {
+    move |e| BaselineError::Candle { context, msg: e.to_string() }
+}
+
+/// Adapter from a [`PerStepNet`] to the shared training loop: masked per-step BCE.
+struct Trainable<'a, N>(&'a N);
+
+impl<N: PerStepNet> TrainableModel for Trainable<'_, N> {
+    fn loss(&self, batch: &Batch, _phase: usize) -> candle_core::Result<Tensor> {
+        let z = self.0.logits(&batch.x)?;
+        masked_bce_with_logits(&z, &batch.y, &batch.mask, batch.n_labelled)
+    }
+}
+
+/// Only the labelled flights of a split.
+fn labelled_only(split: &LabelledResidues) -> Result<LabelledResidues> {
+    let flights: Vec<LabelledSeries> = split.flights().iter().filter(|f| f.labels().is_some()).cloned().collect();
+    if flights.is_empty() {
+        return Err(DetectError::Data { msg: "no labelled training flight".into() }.into());
+    }
+    Ok(LabelledResidues::new(flights)?)
+}
+
+fn fit_neural<N: PerStepNet>(
+    name: &'static str,
+    cfg: &NeuralConfig,
+    train_split: &LabelledResidues,
+    valid: &LabelledResidues,
+    build: impl FnOnce(usize, VarBuilder) -> candle_core::Result<N>,
+) -> Result<NeuralDetector<N>> {
+    cfg.window.check()?;
+    cfg.train.check()?;
+    if cfg.hidden == 0 || cfg.kernel == 0 || cfg.score_stride == 0 {
+        return Err(BaselineError::Config {
+            field: "hidden",
+            msg: format!(
+                "need hidden, kernel and score_stride ≥ 1, got {}, {}, {}",
+                cfg.hidden, cfg.kernel, cfg.score_stride
+            ),
+        });
+    }
+    let channels = fit_channels(train_split, valid)?;
+    let labelled = labelled_only(train_split)?;
+    let norm = Normaliser::fit(&labelled)?;
+    let windows = Windows::from_split(&labelled, &norm, &cfg.window)?;
+    let pairs = labelled_valid(valid)?;
+    let valid_labelled = labelled_only(valid)?;
+    let valid_windows =
+        Windows::from_split(&valid_labelled, &norm, &WindowConfig { len: cfg.window.len, stride: cfg.window.len })?;
+
+    let varmap = VarMap::new();
+    let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+    let net = build(channels.len(), vb).map_err(candle_err("building the network"))?;
+    init_vars_seeded(&varmap, cfg.seed)?;
+    let model = Trainable(&net);
+    // Early stopping on the validation BCE (lower is better).
+    let mut valid_loss = |m: &Trainable<'_, N>| -> quadformer_model::Result<f64> {
+        let idx: Vec<usize> = (0..valid_windows.len()).collect();
+        let (mut sum, mut n) = (0.0, 0usize);
+        for chunk in idx.chunks(SCORE_BATCH) {
+            let batch = valid_windows.batch(chunk, &Device::Cpu)?;
+            let loss = m.loss(&batch, 0)?;
+            sum += f64::from(loss.to_scalar::<f32>()?) * batch.n_labelled as f64;
+            n += batch.n_labelled;
+        }
+        Ok(sum / n.max(1) as f64)
+    };
+    let report = train(&model, &varmap, &windows, &cfg.train, &mut valid_loss)?;
+    let mut det = NeuralDetector {
+        name,
+        channels,
+        norm,
+        net,
+        _varmap: varmap,
+        window: cfg.window,
+        score_stride: cfg.score_stride,
+        threshold: 0.0,
+        report,
+    };
+    let scores = pairs.iter().map(|(s, _)| det.score_inner(s)).collect::<Result<Vec<_>>>()?;
+    det.threshold =
+        ekf_residue::best_f1_threshold(scores.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)))?.0;
+    Ok(det)
+}
+
+impl Fit for CnnConfig {
+    type Detector = Cnn;
+    type Error = BaselineError;
+
+    fn fit(&self, train: &LabelledResidues, valid: &LabelledResidues) -> Result<Cnn> {
+        let (h, k) = (self.0.hidden, self.0.kernel);
+        fit_neural("CNN", &self.0, train, valid, |m, vb| CnnNet::new(m, h, k, vb))
+    }
+}
+
+impl Fit for LstmConfig {
+    type Detector = Lstm;
+    type Error = BaselineError;
+
+    fn fit(&self, train: &LabelledResidues, valid: &LabelledResidues) -> Result<Lstm> {
+        let h = self.0.hidden;
+        fit_neural("LSTM", &self.0, train, valid, |m, vb| LstmNet::new(m, h, vb))
+    }
+}
+
+impl<N: PerStepNet> Detector for NeuralDetector<N> {
+    fn name(&self) -> &str {
+        self.name
+    }
+
+    fn channels(&self) -> &[String] {
+        &self.channels
+    }
+
+    fn score(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
+        ekf_residue::check_channels(&self.channels, series)?;
+        self.score_inner(series).map_err(|e| match e {
+            BaselineError::Detect(d) => d,
+            BaselineError::Model(m) => m.into(),
+            other => DetectError::Backend(other.to_string()),
+        })
+    }
+
+    fn threshold(&self) -> f64 {
+        self.threshold
+    }
+
+    /// Streaming re-scores the last `l` steps as one window (the batch score averages the
+    /// windows covering a step, so the two agree only approximately).
+    fn online_window(&self) -> usize {
+        self.window.len
+    }
+}
