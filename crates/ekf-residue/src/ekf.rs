@@ -13,7 +13,7 @@
 //! - divergence ([`DivergenceGuard`]) is [`FilterError::Diverged`]: `trace(P)` above
 //!   `max_trace_p`, or `max_absurd_updates` consecutive updates with NIS above `nis_absurd`.
 
-use nalgebra::{Cholesky, SMatrix, SVector};
+use nalgebra::{Cholesky, DMatrix, DVector, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
 use crate::error::FilterError;
@@ -278,6 +278,63 @@ impl<const N: usize> Ekf<N> {
             });
         }
         Ok(Innovation { r_k: *r_k, s_k, nis })
+    }
+}
+
+/// The innovation of a runtime-sized update ([`Ekf::update_dyn`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DynInnovation {
+    /// `r_k`.
+    pub r_k: DVector<f64>,
+    /// `S_k`.
+    pub s_k: DMatrix<f64>,
+    /// `r_kᵀ S_k⁻¹ r_k`.
+    pub nis: f64,
+}
+
+impl<const N: usize> Ekf<N> {
+    /// Measurement update (eq:ekf_update) for a measurement whose size is known only at run
+    /// time (e.g. a user's own sensor): `r_k` (M), `h` (M×N), `r_cov` (M×M). Always Joseph form.
+    ///
+    /// # Errors
+    /// [`FilterError::Dim`] when the sizes disagree; otherwise as [`Ekf::update`].
+    pub fn update_dyn(
+        &mut self,
+        r_k: &DVector<f64>,
+        h: &DMatrix<f64>,
+        r_cov: &DMatrix<f64>,
+        t: f64,
+    ) -> Result<DynInnovation, FilterError> {
+        let m = r_k.len();
+        if h.nrows() != m {
+            return Err(FilterError::Dim { what: "rows of H (= length of r_k)", expected: m, got: h.nrows() });
+        }
+        if h.ncols() != N {
+            return Err(FilterError::Dim { what: "columns of H (= state dimension)", expected: N, got: h.ncols() });
+        }
+        if r_cov.nrows() != m || r_cov.ncols() != m {
+            return Err(FilterError::Dim { what: "size of R (= length of r_k)", expected: m, got: r_cov.nrows().max(r_cov.ncols()) });
+        }
+        let p = DMatrix::from_column_slice(N, N, self.p.as_slice());
+        let mut s_k = h * &p * h.transpose() + r_cov;
+        s_k = (&s_k + s_k.transpose()) * 0.5;
+        let chol = s_k
+            .clone()
+            .cholesky()
+            .ok_or(FilterError::NotPositiveDefinite { t, what: "innovation covariance S_k" })?;
+        let ph_t = &p * h.transpose();
+        let k_gain = chol.solve(&ph_t.transpose()).transpose();
+        let nis = r_k.dot(&chol.solve(r_k));
+        let x_post = DVector::from_column_slice(self.x.as_slice()) + &k_gain * r_k;
+        let i_kh = DMatrix::<f64>::identity(N, N) - &k_gain * h;
+        let p_post = &i_kh * &p * i_kh.transpose() + &k_gain * r_cov * k_gain.transpose();
+        if !nis.is_finite() || !x_post.iter().all(|v| v.is_finite()) || !p_post.iter().all(|v| v.is_finite()) {
+            return Err(FilterError::NonFiniteState { t, what: "updated state or covariance" });
+        }
+        self.x = SVector::<f64, N>::from_column_slice(x_post.as_slice());
+        self.p = SMatrix::<f64, N, N>::from_column_slice(p_post.as_slice());
+        symmetrise(&mut self.p);
+        Ok(DynInnovation { r_k: r_k.clone(), s_k, nis })
     }
 }
 

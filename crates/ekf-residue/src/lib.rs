@@ -35,7 +35,7 @@ pub mod residues;
 pub mod series;
 
 pub use detector::{Confusion, Detector, Fit, OnlineDecision, OnlineDetector, WindowedOnline, best_f1_threshold, check_channels};
-pub use ekf::{CovarianceUpdate, DivergenceGuard, Ekf, Innovation};
+pub use ekf::{CovarianceUpdate, DivergenceGuard, DynInnovation, Ekf, Innovation};
 pub use error::{DetectError, FilterError, ResidueError};
 pub use model1_filter::{ImuNoise, Model1Filter};
 pub use model2_filter::Model2Filter;

@@ -60,17 +60,23 @@ pub const MODEL2_VO_GPS_CHANNELS: [&str; 9] =
     ["vo_x", "vo_y", "vo_z", "vo_roll", "vo_pitch", "vo_yaw", "gps_x", "gps_y", "gps_z"];
 
 /// Measurement noise standard deviations (the filter's `R_k = diag(σ²)`).
+///
+/// Defaults equal the simulator's sensor figures (`uav_dynamics::sim::SimConfig`, sources
+/// collected in docs/sensors.md), so that a filter with default settings is consistent on
+/// default simulated flights.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MeasurementNoise {
     /// GPS position σ (E, N, U), metres. Default `[0.5, 0.5, 0.75]`: PX4 `EKF2_GPS_P_NOISE`
     /// 0.5 m horizontal, vertical 1.5× horizontal (PX4 gnss_height_control.cpp comment).
     pub gps_sigma_m: [f64; 3],
-    /// Attitude reference σ (roll, pitch, yaw), radians. Default 0.1: PX4 `EKF2_EVA_NOISE`.
+    /// Attitude reference σ (roll, pitch, yaw), radians. Default `[0.0175, 0.0175, 0.035]`
+    /// (1° roll/pitch, 2° heading: VectorNav VN-100 AHRS data-sheet class).
     pub attitude_sigma_rad: [f64; 3],
-    /// VO relative position σ, metres. Default 0.1: PX4 `EKF2_EVP_NOISE`.
+    /// VO relative position σ, metres. Default 0.1 (PX4 `EKF2_EVP_NOISE`).
     pub vo_pos_sigma_m: [f64; 3],
-    /// VO relative orientation σ, radians. Default 0.1: PX4 `EKF2_EVA_NOISE`.
+    /// VO relative orientation σ, radians. Default 0.05 (simulator default, between PX4
+    /// `EKF2_EVA_NOISE` 0.1 rad and typical stereo VO, docs/sensors.md).
     pub vo_att_sigma_rad: [f64; 3],
 }
 
@@ -78,9 +84,9 @@ impl Default for MeasurementNoise {
     fn default() -> Self {
         Self {
             gps_sigma_m: [0.5, 0.5, 0.75],
-            attitude_sigma_rad: [0.1; 3],
+            attitude_sigma_rad: [0.0175, 0.0175, 0.035],
             vo_pos_sigma_m: [0.1; 3],
-            vo_att_sigma_rad: [0.1; 3],
+            vo_att_sigma_rad: [0.05; 3],
         }
     }
 }
@@ -91,7 +97,9 @@ impl Default for MeasurementNoise {
 pub struct InitConfig {
     /// Initial velocity `v̂₀`, m/s (ENU). Default 0 (flights start in hover).
     pub v0: [f64; 3],
-    /// Initial velocity σ, m/s. Default 1.0 (covers a slow start; a guess, not a citation).
+    /// Initial velocity σ, m/s. Default 12: PX4's default horizontal cruise limit
+    /// `MPC_XY_VEL_MAX`, so a flight that starts at any speed a default vehicle flies is within
+    /// one σ (the first GPS fixes shrink it within a second).
     pub sigma_v0: f64,
     /// Initial gyro bias σ, rad/s. Default 8.7e-3 (0.5 °/s, PX4 SITL gyro turn-on bias σ).
     pub sigma_bg0: f64,
@@ -103,7 +111,7 @@ pub struct InitConfig {
 
 impl Default for InitConfig {
     fn default() -> Self {
-        Self { v0: [0.0; 3], sigma_v0: 1.0, sigma_bg0: 8.7e-3, sigma_ba0: 0.196, sigma_yaw0_unknown: 0.5 }
+        Self { v0: [0.0; 3], sigma_v0: 12.0, sigma_bg0: 8.7e-3, sigma_ba0: 0.196, sigma_yaw0_unknown: 0.5 }
     }
 }
 
@@ -143,7 +151,35 @@ impl FilterConfig {
         }
     }
 
-    fn check(&self) -> Result<(), FilterError> {
+    /// A filter whose noise model matches a simulator configuration: IMU per-sample σ and bias
+    /// random walks, GPS, attitude and VO σ, and the initial bias σ (floored at the defaults'
+    /// 1 % so that `P₀` stays positive definite when the simulator starts unbiased).
+    #[must_use]
+    pub fn for_sim(model: ModelKind, sim: &uav_dynamics::sim::SimConfig) -> Self {
+        let mut cfg = Self::new(model);
+        cfg.imu = ImuNoise {
+            gyro_sigma: sim.gyro_sigma(),
+            accel_sigma: sim.accel_sigma(),
+            gyro_bias_rw: sim.gyro_bias_walk,
+            accel_bias_rw: sim.accel_bias_walk,
+        };
+        cfg.meas = MeasurementNoise {
+            gps_sigma_m: sim.gps_sigma_m,
+            attitude_sigma_rad: sim.attitude_sigma_rad,
+            vo_pos_sigma_m: [sim.vo_pos_sigma_m; 3],
+            vo_att_sigma_rad: [sim.vo_att_sigma_rad; 3],
+        };
+        let d = InitConfig::default();
+        cfg.init.sigma_bg0 = sim.gyro_bias_init_sigma.max(0.01 * d.sigma_bg0);
+        cfg.init.sigma_ba0 = sim.accel_bias_init_sigma.max(0.01 * d.sigma_ba0);
+        cfg
+    }
+
+    /// Validate the configuration.
+    ///
+    /// # Errors
+    /// [`FilterError::Config`] naming the field.
+    pub fn check(&self) -> Result<(), FilterError> {
         let pos = |field: &'static str, v: &[f64]| {
             if v.iter().all(|x| x.is_finite() && *x > 0.0) {
                 Ok(())
