@@ -5,6 +5,7 @@
 //! interface. It may use every crate below it.
 #![warn(missing_docs)]
 
+pub mod cli;
 pub mod dataset;
 pub mod io;
 pub mod metrics;

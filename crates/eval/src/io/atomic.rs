@@ -38,6 +38,8 @@ pub fn write_file_atomic(path: &Path, write: impl FnOnce(File) -> Result<File>) 
         op: "create a temporary file in",
         source,
     })?;
+    // Temporary files are created private (0600); the output is an ordinary data file.
+    set_mode(tmp.path(), 0o644)?;
     let handle =
         tmp.as_file().try_clone().map_err(|source| IoError::Fs { path: path.to_owned(), op: "open", source })?;
     let handle = write(handle)?;
@@ -102,6 +104,7 @@ pub fn write_dir_atomic(dir: &Path, overwrite: Overwrite, fill: impl FnOnce(&Pat
         op: "create a temporary directory in",
         source,
     })?;
+    set_mode(tmp.path(), 0o755)?;
     fill(tmp.path())?;
     // Move any old directory aside first, so that the rename of the new one cannot fail on a
     // non-empty target, and delete it only once the new one is in place.
@@ -135,4 +138,31 @@ pub fn write_dir_atomic(dir: &Path, overwrite: Overwrite, fill: impl FnOnce(&Pat
         let _ = std::fs::remove_dir_all(aside);
     }
     Ok(())
+}
+
+/// Gives a temporary file or directory ordinary permissions, masked by the process umask as
+/// a normally created file would be (Unix only; a no-op elsewhere).
+fn set_mode(path: &Path, mode: u32) -> Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt as _;
+        let umask = current_umask();
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode & !umask))
+            .map_err(|source| IoError::Fs { path: path.to_owned(), op: "set permissions of", source })?;
+    }
+    #[cfg(not(unix))]
+    let _ = (path, mode);
+    Ok(())
+}
+
+/// The process umask, read from `/proc/self/status` where available (Linux ≥ 4.7); 0o022,
+/// the usual default, otherwise. Reading it this way avoids `umask(2)`, which would change it.
+#[cfg(unix)]
+fn current_umask() -> u32 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines().find_map(|l| l.strip_prefix("Umask:")).and_then(|v| u32::from_str_radix(v.trim(), 8).ok())
+        })
+        .unwrap_or(0o022)
 }

@@ -26,6 +26,7 @@
 mod atomic;
 mod attack;
 mod error;
+mod flight_config;
 mod flight_dir;
 mod residues;
 mod streams;
@@ -34,6 +35,7 @@ mod table;
 pub use atomic::{Overwrite, write_dir_atomic, write_file_atomic, write_text_atomic};
 pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, labels_at, read_attack, write_attack};
 pub use error::{IoError, Result};
+pub use flight_config::{FlightConfig, SeedStream, TrajectoryConfig, TrajectoryKind};
 pub use flight_dir::{
     ATTACK_FILE, ATTITUDE_FILE, CONFIG_FILE, FlightDir, GPS_FILE, IMU_FILE, TRUTH_FILE, VO_FILE, read_flight_dir,
     write_flight_dir,

@@ -1,0 +1,90 @@
+//! The `quadformer` command-line interface (DESIGN.md "What done looks like"): one module per
+//! subcommand, each with a clap `Args` struct and a `run` function returning [`CliError`].
+//!
+//! Subcommands so far: `simulate` (config TOML → flight directory) and `residues` (flight
+//! directory → residue CSV, paper alg:alg1). To add one (`train`, `detect`, `fuse`,
+//! `reproduce-tables`, `figures`): write `cli/<name>.rs` with `pub struct Args` (clap
+//! derive, doc comments become `--help`) and `pub fn run(args: &Args) -> Result<(), CliError>`,
+//! add a variant to [`Command`] and a line to [`run`], and, if needed, a [`CliError`] variant.
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+
+use crate::io::IoError;
+
+pub mod residues;
+pub mod simulate;
+
+/// QUADFormer-rs: simulate quadrotor flights, attack their GPS, compute EKF residues and
+/// detect attacks (paper: "QUADFormer: Learning-based Detection of Cyber Attacks in Quadrotor
+/// UAVs"). File formats: docs/data-format.md.
+#[derive(Debug, Parser)]
+#[command(name = "quadformer", version, propagate_version = true)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Simulate a flight from a TOML config and write its sensor streams, truth and attack
+    /// labels as a flight directory.
+    Simulate(simulate::Args),
+    /// Run the Model I or Model II EKF on a flight directory (simulated or your own log) and
+    /// write the residue sequence r_k, S_k, NIS (and labels, if known) as CSV.
+    Residues(residues::Args),
+}
+
+/// Runs a parsed command line.
+///
+/// # Errors
+/// Whatever the subcommand reports; see [`CliError`].
+pub fn run(cli: &Cli) -> Result<(), CliError> {
+    match &cli.command {
+        Command::Simulate(args) => simulate::run(args),
+        Command::Residues(args) => residues::run(args),
+    }
+}
+
+/// Errors of the command-line subcommands; each names the file or field concerned.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CliError {
+    /// Reading or writing a file failed.
+    #[error(transparent)]
+    Io(#[from] IoError),
+    /// A config value is invalid.
+    #[error("{}: {msg}", path.display())]
+    Config {
+        /// The config file.
+        path: PathBuf,
+        /// What is wrong, naming the field.
+        msg: String,
+    },
+    /// The simulator failed.
+    #[error("simulation failed: {0}")]
+    Sim(#[from] uav_dynamics::Error),
+    /// Attack planning or injection failed.
+    #[error("attack injection failed: {0}")]
+    Attack(#[from] attack_inject::AttackError),
+    /// The input does not suit the requested operation (e.g. a stream the model needs is
+    /// missing).
+    #[error("{}: {msg}", path.display())]
+    Input {
+        /// The input file or directory.
+        path: PathBuf,
+        /// What is missing or wrong.
+        msg: String,
+    },
+    /// The EKF failed on the input.
+    #[error("{}: EKF failed: {msg}", path.display())]
+    Filter {
+        /// The flight directory.
+        path: PathBuf,
+        /// The filter's error, with step and time.
+        msg: String,
+    },
+}
