@@ -1,9 +1,23 @@
-//! `quadformer residues`: flight directory → residue CSV (paper alg:alg1; docs/data-format.md).
+//! `quadformer residues`: flight directory → residue CSV (paper alg:alg1, eq:ekf_update;
+//! docs/data-format.md "Residue file").
+//!
+//! The EKF (`ekf_residue::residues::generate_residues`) runs on the streams of the directory.
+//! Its noise model is, in order of precedence: the `--filter-config` file (keys left out keep
+//! the base values), else the simulator settings of the directory's `config.toml` when it was
+//! made by `quadformer simulate` (`FilterConfig::for_sim`, a consistent filter), else the
+//! documented defaults (`FilterConfig::new`). Labels come from `attack.csv` when present: a
+//! residue step is attacked when the GPS fix at its time is (`eval::io::labels_at`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+use ekf_residue::residues::{FilterConfig, ModelKind, generate_residues};
+use uav_dynamics::TruthSample;
 
 use crate::cli::CliError;
-use crate::io::CovarianceLayout;
+use crate::io::{
+    ATTITUDE_FILE, CONFIG_FILE, CovarianceLayout, FlightConfig, FlightDir, GPS_FILE, IoError, VO_FILE, labels_at,
+    read_flight_dir, write_residues, write_truth,
+};
 
 /// Which EKF model to run (paper sec:residue_generator).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -14,6 +28,15 @@ pub enum ModelArg {
     /// Model II: 21 states with a keyframe clone, VO relative pose (+ GPS) (eq:model2f, eq:model2g).
     #[value(name = "II", alias = "2", alias = "ii")]
     Two,
+}
+
+impl From<ModelArg> for ModelKind {
+    fn from(m: ModelArg) -> Self {
+        match m {
+            ModelArg::One => Self::ModelI,
+            ModelArg::Two => Self::ModelII,
+        }
+    }
 }
 
 /// Storage of S_k in the residue file.
@@ -41,8 +64,9 @@ pub struct Args {
     /// EKF model: I (GPS + attitude) or II (VO + GPS, keyframe cloning).
     #[arg(long, value_enum)]
     pub model: ModelArg,
-    /// Flight directory: imu.csv plus the streams the model needs (I: gps.csv, attitude.csv;
-    /// II: vo.csv, gps.csv); truth.csv and attack.csv are optional.
+    /// Flight directory: imu.csv plus the streams the model needs (I: gps.csv and
+    /// attitude.csv; II: vo.csv, with gps.csv and attitude.csv used when present); truth.csv
+    /// and attack.csv are optional.
     #[arg(long = "in", value_name = "DIR")]
     pub input: PathBuf,
     /// Output residue CSV (written atomically).
@@ -51,6 +75,13 @@ pub struct Args {
     /// How to store S_k.
     #[arg(long, value_enum, default_value_t = LayoutArg::Upper)]
     pub covariance: LayoutArg,
+    /// Filter settings (TOML, `ekf_residue::residues::FilterConfig` fields: imu, meas, init,
+    /// cov_update, guard, pair_tolerance_s); keys left out keep the base values.
+    #[arg(long, value_name = "FILE.toml")]
+    pub filter_config: Option<PathBuf>,
+    /// Also write the posterior state estimate after each residue step (truth.csv columns).
+    #[arg(long, value_name = "FILE.csv")]
+    pub estimates: Option<PathBuf>,
     /// Do not write a label column even if attack.csv exists.
     #[arg(long)]
     pub no_labels: bool,
@@ -59,8 +90,102 @@ pub struct Args {
 /// Runs `quadformer residues`.
 ///
 /// # Errors
-/// [`CliError`] naming the file, line and column of bad input, or the step where the EKF failed.
+/// [`CliError`] naming the file, line and column of bad input, a stream the model needs that
+/// is missing, or the filter time at which the EKF failed.
 pub fn run(args: &Args) -> Result<(), CliError> {
-    let _ = args;
-    Err(CliError::Input { path: args.input.clone(), msg: "not available yet".into() })
+    let flight = read_flight_dir(&args.input)?;
+    let model = ModelKind::from(args.model);
+    check_streams(&args.input, &flight, model)?;
+    let cfg = filter_config(args, &flight, model)?;
+    let out = generate_residues(&flight.streams, &cfg)
+        .map_err(|e| CliError::Filter { path: args.input.clone(), msg: e.to_string() })?;
+    let labels = match (&flight.attack, args.no_labels) {
+        (Some(attack), false) => Some(labels_at(out.series.t(), attack)),
+        _ => None,
+    };
+    write_residues(&args.out, &out.series, labels.as_deref(), args.covariance.into())?;
+    if let Some(path) = &args.estimates {
+        let rows: Vec<TruthSample> = out
+            .estimates
+            .iter()
+            .map(|e| TruthSample { t: e.t, p: e.p, q: e.q, v: e.v, b_g: e.b_g, b_a: e.b_a })
+            .collect();
+        write_truth(path, &rows)?;
+    }
+    let n = out.series.len();
+    #[allow(clippy::cast_precision_loss)] // step counts are far below 2^52
+    let mean_nis = out.series.nis().iter().sum::<f64>() / n.max(1) as f64;
+    let attacked = labels
+        .as_ref()
+        .map_or_else(|| "unlabelled".to_owned(), |l| format!("{} attacked", l.iter().filter(|&&x| x).count()));
+    eprintln!(
+        "wrote {}: {n} residue steps ({attacked}), channels {}, mean NIS {mean_nis:.3}",
+        args.out.display(),
+        out.series.channels().join(" ")
+    );
+    Ok(())
+}
+
+/// Checks that the directory has the streams `model` needs, naming the missing file.
+fn check_streams(dir: &Path, flight: &FlightDir, model: ModelKind) -> Result<(), CliError> {
+    let s = &flight.streams;
+    let needed: &[(&str, bool)] = match model {
+        ModelKind::ModelI => &[(GPS_FILE, s.gps.is_empty()), (ATTITUDE_FILE, s.attitude.is_empty())],
+        ModelKind::ModelII => &[(VO_FILE, s.vo.is_empty())],
+    };
+    for &(file, missing) in needed {
+        if missing {
+            let model_name = if model == ModelKind::ModelI { "Model I" } else { "Model II" };
+            return Err(CliError::Input {
+                path: dir.join(file),
+                msg: format!("missing or empty; {model_name} needs it"),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// The filter configuration (see the module doc for the precedence).
+fn filter_config(args: &Args, flight: &FlightDir, model: ModelKind) -> Result<FilterConfig, CliError> {
+    let base = match &flight.config_toml {
+        Some(text) => {
+            let path = args.input.join(CONFIG_FILE);
+            match FlightConfig::from_toml(&path, text) {
+                Ok(cfg) => FilterConfig::for_sim(model, &cfg.sim),
+                Err(e) => {
+                    eprintln!("warning: {e}; using the default filter settings");
+                    FilterConfig::new(model)
+                }
+            }
+        }
+        None => FilterConfig::new(model),
+    };
+    let Some(path) = &args.filter_config else {
+        return Ok(base);
+    };
+    let text =
+        std::fs::read_to_string(path).map_err(|source| IoError::Fs { path: path.clone(), op: "read", source })?;
+    let toml_err = |msg: String| CliError::Io(IoError::Toml { path: path.clone(), msg });
+    let mut user: toml::Table = text.parse().map_err(|e: toml::de::Error| toml_err(e.to_string()))?;
+    let mut merged = toml::Table::try_from(base).map_err(|e| toml_err(e.to_string()))?;
+    user.remove("model"); // --model decides
+    merge_over(&mut merged, user);
+    let mut cfg: FilterConfig =
+        merged.try_into().map_err(|e: toml::de::Error| toml_err(e.message().trim().to_owned()))?;
+    cfg.model = model;
+    cfg.check().map_err(|e| CliError::Config { path: path.clone(), msg: e.to_string() })?;
+    Ok(cfg)
+}
+
+/// Overwrites `base` with the keys of `user`, recursing into tables present in both; keys of
+/// `user` unknown to `base` are kept, so that deserialisation rejects them by name.
+fn merge_over(base: &mut toml::Table, user: toml::Table) {
+    for (key, uv) in user {
+        match (base.get_mut(&key), uv) {
+            (Some(toml::Value::Table(bt)), toml::Value::Table(ut)) => merge_over(bt, ut),
+            (_, uv) => {
+                base.insert(key, uv);
+            }
+        }
+    }
 }
