@@ -48,7 +48,7 @@ impl AttackKind {
 
 /// How attack amplitudes `‖d_k‖` are drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "mode", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum AmplitudeConfig {
     /// Main tables: log-uniform between `min_sigma · σ_gps` and `max_m` metres, one draw per
     /// interval. DESIGN.md, "Conventions": "amplitudes span about 3 GPS σ to 30 m".
@@ -320,7 +320,7 @@ mod tests {
         let partial: AttackConfig = serde_json::from_str(r#"{"kind":"sparse"}"#).unwrap();
         assert_eq!(partial, AttackConfig::new(AttackKind::Sparse));
         let fixed: AttackConfig =
-            serde_json::from_str(r#"{"kind":"noise","amplitude":{"mode":"fixed","sigma_multiple":2.0}}"#).unwrap();
+            serde_json::from_str(r#"{"kind":"noise","amplitude":{"fixed":{"sigma_multiple":2.0}}}"#).unwrap();
         assert_eq!(fixed.amplitude, AmplitudeConfig::Fixed { sigma_multiple: 2.0 });
         assert!(serde_json::from_str::<AttackConfig>(r#"{"kind":"sparse","bogus":1}"#).is_err());
     }

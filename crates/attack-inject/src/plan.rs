@@ -18,7 +18,7 @@ use crate::error::{AttackError, Result};
 
 /// What an attack interval does to the GPS fixes inside it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "shape", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum AttackShape {
     /// Attack I burst: constant offset `d` (metres, ENU) for the whole interval.
     Burst {
