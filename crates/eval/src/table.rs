@@ -225,8 +225,11 @@ fn method_key(method: &str) -> (MethodGroup, usize) {
         .map_or((MethodGroup::Extra, METHOD_ORDER.len()), |i| (METHOD_ORDER[i].1, i))
 }
 
+/// Group, rank within the table, name.
+type MethodSortKey<'a> = (MethodGroup, usize, &'a str);
+
 /// Sort key of a method: group, rank, then name.
-fn method_sort_key(method: &str) -> (MethodGroup, usize, &str) {
+fn method_sort_key(method: &str) -> MethodSortKey<'_> {
     let (g, r) = method_key(method);
     (g, r, method)
 }
@@ -412,7 +415,7 @@ impl RunResult {
         Ok(())
     }
 
-    fn sort_key(&self) -> (Cell, (MethodGroup, usize, &str), u64) {
+    fn sort_key(&self) -> (Cell, MethodSortKey<'_>, u64) {
         (self.cell(), method_sort_key(&self.method), self.seed)
     }
 }
@@ -660,7 +663,7 @@ pub struct Summary {
 /// # Errors
 /// As [`sorted`].
 pub fn summarise(results: &[RunResult]) -> Result<Vec<Summary>> {
-    let mut groups: BTreeMap<(Cell, (MethodGroup, usize, &str)), Vec<&RunResult>> = BTreeMap::new();
+    let mut groups: BTreeMap<(Cell, MethodSortKey<'_>), Vec<&RunResult>> = BTreeMap::new();
     for r in sorted(results)? {
         groups.entry((r.cell(), method_sort_key(&r.method))).or_default().push(r);
     }
