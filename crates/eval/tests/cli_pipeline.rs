@@ -2,6 +2,9 @@
 //! readable CSVs with aligned labels; bad input exits non-zero with a message naming the file,
 //! line and column; nothing partial is left behind.
 
+// Helpers outside `#[test]` functions unwrap too: a failure there is a test failure.
+#![allow(clippy::unwrap_used)]
+
 use std::path::Path;
 use std::process::{Command, Output};
 

@@ -1,6 +1,9 @@
 //! Bad input files give errors that name the file, the line and the column; failed writes
 //! leave nothing behind (docs/data-format.md, "Errors").
 
+// Helpers outside `#[test]` functions unwrap too: a failure there is a test failure.
+#![allow(clippy::unwrap_used)]
+
 use std::path::Path;
 
 use eval::io::{

@@ -1,6 +1,9 @@
 //! Round trips of every file format of `eval::io` (docs/data-format.md): write → read gives
 //! bit-identical samples, because `f64` is printed in shortest round-trip form.
 
+// Helpers outside `#[test]` functions unwrap too: a failure there is a test failure.
+#![allow(clippy::unwrap_used)]
+
 use ekf_residue::ResidueSeries;
 use eval::io::{
     AttackRecord, CovarianceLayout, FlightDir, Overwrite, read_attack, read_flight_dir, read_residues, write_attack,

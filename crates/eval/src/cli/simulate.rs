@@ -78,10 +78,10 @@ pub fn simulate_flight(config_path: &Path, cfg: &FlightConfig) -> Result<FlightD
         path: config_path.to_owned(),
         msg: format!("[{section}]: {e}"),
     };
-    if let Some(d) = cfg.duration_s {
-        if !(d.is_finite() && d > 0.0) {
-            return Err(config_err("top level", &format!("duration_s must be positive, got {d}")));
-        }
+    if let Some(d) = cfg.duration_s
+        && !(d.is_finite() && d > 0.0)
+    {
+        return Err(config_err("top level", &format!("duration_s must be positive, got {d}")));
     }
     let traj = cfg
         .trajectory

@@ -106,7 +106,7 @@ impl TrajectoryConfig {
 }
 
 /// Everything `quadformer simulate` needs to make one flight.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FlightConfig {
     /// Master seed; the route, the sensor noise and each attack plan use seeds derived from it
@@ -131,18 +131,6 @@ pub struct FlightConfig {
     /// that share. Default: none (a clean flight).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub attacks: Vec<AttackConfig>,
-}
-
-impl Default for FlightConfig {
-    fn default() -> Self {
-        Self {
-            seed: 0,
-            duration_s: None,
-            trajectory: TrajectoryConfig::default(),
-            sim: SimConfig::default(),
-            attacks: Vec::new(),
-        }
-    }
 }
 
 /// Purposes of derived seeds.

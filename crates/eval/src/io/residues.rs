@@ -54,13 +54,13 @@ pub fn write_residues(
     labels: Option<&[bool]>,
     layout: CovarianceLayout,
 ) -> Result<()> {
-    if let Some(l) = labels {
-        if l.len() != series.len() {
-            return Err(IoError::Inconsistent {
-                path: path.to_owned(),
-                msg: format!("{} labels for {} residue steps", l.len(), series.len()),
-            });
-        }
+    if let Some(l) = labels
+        && l.len() != series.len()
+    {
+        return Err(IoError::Inconsistent {
+            path: path.to_owned(),
+            msg: format!("{} labels for {} residue steps", l.len(), series.len()),
+        });
     }
     let ch = series.channels();
     let m = ch.len();

@@ -137,14 +137,14 @@ pub(crate) fn read_records<R: CsvRecord>(path: &Path) -> Result<Vec<R>> {
         let t = input.time(&row, cols[0], prev_t)?;
         if let Some(kc) = keyframe_col {
             let k = input.u32(&row, kc)?;
-            if let Some(k_prev) = prev_keyframe {
-                if k < k_prev {
-                    return Err(input.field_error(
-                        &row,
-                        kc,
-                        format!("keyframe index must not decrease: {k} after {k_prev}"),
-                    ));
-                }
+            if let Some(k_prev) = prev_keyframe
+                && k < k_prev
+            {
+                return Err(input.field_error(
+                    &row,
+                    kc,
+                    format!("keyframe index must not decrease: {k} after {k_prev}"),
+                ));
             }
             prev_keyframe = Some(k);
         }

@@ -175,14 +175,14 @@ impl CsvIn {
     /// Field `col` as a time stamp in seconds, strictly after `prev` (the previous record's).
     pub(crate) fn time(&self, row: &Row, col: usize, prev: Option<f64>) -> Result<f64> {
         let t = self.f64(row, col)?;
-        if let Some(t_prev) = prev {
-            if t <= t_prev {
-                return Err(self.field_error(
-                    row,
-                    col,
-                    format!("time stamps must increase strictly: {t:?} s is not after {t_prev:?} s"),
-                ));
-            }
+        if let Some(t_prev) = prev
+            && t <= t_prev
+        {
+            return Err(self.field_error(
+                row,
+                col,
+                format!("time stamps must increase strictly: {t:?} s is not after {t_prev:?} s"),
+            ));
         }
         Ok(t)
     }
