@@ -199,3 +199,15 @@ proptest! {
         prop_assert!((a + b - 1.0).abs() < 1e-12);
     }
 }
+
+#[test]
+fn result_types_are_send_and_sync() {
+    fn assert_send_sync<T: Send + Sync>() {}
+    assert_send_sync::<RocCurve>();
+    assert_send_sync::<MeanStd>();
+    assert_send_sync::<MetricsError>();
+    assert_send_sync::<eval::metrics::Evaluation>();
+    assert_send_sync::<eval::table::RunResult>();
+    assert_send_sync::<eval::table::TableError>();
+    assert_send_sync::<eval::plot::PlotError>();
+}
