@@ -8,7 +8,7 @@ use clap::{Args, Parser, Subcommand};
 
 /// Developer and user tasks for QUADFormer-rs.
 #[derive(Debug, Parser)]
-#[command(name = "cargo xtask", version, about)]
+#[command(name = "xtask", bin_name = "cargo xtask", version, about)]
 pub(crate) struct Xtask {
     /// The task to run.
     #[command(subcommand)]
