@@ -10,5 +10,6 @@ pub mod dataset;
 pub mod io;
 pub mod metrics;
 pub mod plot;
+pub mod reproduce;
 pub mod runner;
 pub mod table;

@@ -196,6 +196,27 @@ impl RocCurve {
     pub fn average_precision(&self) -> f64 {
         self.average_precision
     }
+
+    /// Rebuilds a stored (possibly thinned) curve from `(fpr, tpr)` points and its summary
+    /// areas, e.g. from a results cache for plotting. Thresholds and precisions of the points
+    /// are not stored and read as NaN.
+    ///
+    /// # Errors
+    /// [`MetricsError::NonFinite`] unless the points are finite, in `[0, 1]`, and non-decreasing
+    /// in both coordinates (step index reported as the point index).
+    pub fn from_fpr_tpr(points: &[(f64, f64)], auc: f64, average_precision: f64) -> Result<Self> {
+        let mut prev = (0.0, 0.0);
+        let mut out = Vec::with_capacity(points.len());
+        for (step_idx, &(fpr, tpr)) in points.iter().enumerate() {
+            let in_unit = (0.0..=1.0).contains(&fpr) && (0.0..=1.0).contains(&tpr);
+            if !in_unit || fpr < prev.0 || tpr < prev.1 {
+                return Err(MetricsError::NonFinite { flight_idx: 0, step_idx, what: "ROC point" });
+            }
+            prev = (fpr, tpr);
+            out.push(RocPoint { threshold: f64::NAN, fpr, tpr, precision: f64::NAN });
+        }
+        Ok(Self { points: out, auc, average_precision })
+    }
 }
 
 /// ROC AUC of one flight's `scores` against `labels`.
