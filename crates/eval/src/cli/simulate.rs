@@ -29,6 +29,9 @@ pub struct Args {
     /// Replace DIR if it exists (the old directory is removed only after the new one is complete).
     #[arg(long)]
     pub force: bool,
+    /// Do not write truth.csv (e.g. to keep a committed fixture small).
+    #[arg(long)]
+    pub no_truth: bool,
     /// Print the default config with every field explicit, and exit.
     #[arg(long)]
     pub print_default_config: bool,
@@ -50,7 +53,10 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     if let Some(seed) = args.seed {
         cfg.seed = seed;
     }
-    let flight = simulate_flight(config, &cfg)?;
+    let mut flight = simulate_flight(config, &cfg)?;
+    if args.no_truth {
+        flight.truth = None;
+    }
     let overwrite = if args.force { Overwrite::Replace } else { Overwrite::Refuse };
     write_flight_dir(out, &flight, overwrite)?;
     let n_attacked = flight.attack.as_ref().map_or(0, |a| a.iter().filter(|r| r.label).count());
