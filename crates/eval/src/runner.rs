@@ -143,13 +143,16 @@ impl Method {
         }
     }
 
-    /// Parses a [`Method::slug`] (case-insensitive).
+    /// Parses a [`Method::slug`] or [`Method::name`] (case-insensitive).
     ///
     /// # Errors
     /// [`RunError::UnknownMethod`].
     pub fn parse(s: &str) -> Result<Self> {
         let s = s.trim().to_ascii_lowercase();
-        Method::ALL.into_iter().find(|m| m.slug() == s).ok_or(RunError::UnknownMethod(s))
+        Method::ALL
+            .into_iter()
+            .find(|m| m.slug() == s || m.name().to_ascii_lowercase() == s)
+            .ok_or(RunError::UnknownMethod(s))
     }
 
     /// Whether the method learns from labelled windows (and so depends on the seed beyond the data).
@@ -336,7 +339,8 @@ pub fn run_record(
     train_s: f64,
 ) -> Result<RunRecord> {
     let mut outcomes = Vec::with_capacity(test.flights().len());
-    for (flight_idx, ((f, scores), alarms)) in test.flights().iter().zip(&scored.scores).zip(&scored.alarms).enumerate() {
+    for (flight_idx, ((f, scores), alarms)) in test.flights().iter().zip(&scored.scores).zip(&scored.alarms).enumerate()
+    {
         let labels = f.labels().ok_or(RunError::UnlabelledTest { flight_idx })?;
         outcomes.push(FlightOutcome { t: f.series().t(), scores, alarms, labels });
     }

@@ -13,6 +13,7 @@ use clap::{Parser, Subcommand};
 
 use crate::io::IoError;
 
+pub mod reproduce_tables;
 pub mod residues;
 pub mod simulate;
 
@@ -36,6 +37,9 @@ pub enum Command {
     /// Run the Model I or Model II EKF on a flight directory (simulated or your own log) and
     /// write the residue sequence r_k, S_k, NIS (and labels, if known) as CSV.
     Residues(residues::Args),
+    /// Run the paper's experiment matrix (Model I/II × exponential/Laplace noise × Attack I/II)
+    /// for every method and write Tables I and II, ROC plots, sweeps, ablations and a report.
+    ReproduceTables(reproduce_tables::Args),
 }
 
 /// Runs a parsed command line.
@@ -46,6 +50,7 @@ pub fn run(cli: &Cli) -> Result<(), CliError> {
     match &cli.command {
         Command::Simulate(args) => simulate::run(args),
         Command::Residues(args) => residues::run(args),
+        Command::ReproduceTables(args) => reproduce_tables::run(args),
     }
 }
 
@@ -79,6 +84,9 @@ pub enum CliError {
         /// What is missing or wrong.
         msg: String,
     },
+    /// An experiment stage failed (dataset, fit, scoring, metrics or output).
+    #[error("{0}")]
+    Run(String),
     /// The EKF failed on the input.
     #[error("{}: EKF failed: {msg}", path.display())]
     Filter {
