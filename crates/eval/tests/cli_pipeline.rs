@@ -163,6 +163,15 @@ fn missing_stream_and_bad_config_are_named() {
     let msg = stderr(&o);
     assert!(msg.contains("bad.toml") && msg.contains("line 3") && msg.contains("circle"), "{msg}");
     assert!(!tmp.path().join("x").exists());
+
+    // A requested attack that cannot fit is an error, not a silently clean flight.
+    std::fs::write(&cfg, "duration_s = 30.0\n[[attacks]]\nkind = \"sparse\"\n[[attacks]]\nkind = \"persistent\"\n")
+        .unwrap();
+    let o =
+        quadformer(&["simulate", "--config", cfg.to_str().unwrap(), "--out", tmp.path().join("x").to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("[attacks 2]: no persistent interval fits"), "{}", stderr(&o));
+    assert!(!tmp.path().join("x").exists());
 }
 
 #[test]

@@ -110,6 +110,18 @@ pub fn simulate_flight(config_path: &Path, cfg: &FlightConfig) -> Result<FlightD
             let seed = cfg.sub_seed(SeedStream::Attack(u32::try_from(i).unwrap_or(u32::MAX)));
             let plan = AttackPlan::sample(&valid, t0, t0 + share, seed)
                 .map_err(|e| config_err(&format!("attacks {}", i + 1), &e))?;
+            if plan.intervals().is_empty() && attack.attacked_fraction > 0.0 {
+                let [d_min, _] = attack.durations.of(attack.kind);
+                return Err(config_err(
+                    &format!("attacks {}", i + 1),
+                    &format!(
+                        "no {} interval fits: {:.3} s attacked of a {share:.3} s share is less than half the \
+                         minimum duration {d_min} s; raise attacked_fraction or duration_s, or shorten durations",
+                        attack.kind.name(),
+                        attack.attacked_fraction * share
+                    ),
+                ));
+            }
             intervals.extend_from_slice(plan.intervals());
         }
     }
