@@ -193,3 +193,26 @@ fn existing_directory_is_refused_or_replaced_whole() {
     assert_eq!(read_flight_dir(&dir).unwrap(), flight);
     assert_eq!(std::fs::read_dir(tmp.path()).unwrap().count(), 1, "only the flight directory remains");
 }
+
+#[test]
+fn geodetic_gps_is_converted_to_local_enu_at_the_first_fix() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("gps.csv");
+    // HKUST campus; 1e-4° of latitude is about 11.07 m north (meridian radius of curvature
+    // 6.3767e6 m at 22.3°), 2 m of height is 2 m up.
+    std::fs::write(
+        &path,
+        "t,lat_deg,lon_deg,h_m\n0.0,22.3364,114.2655,50\n0.1,22.3365,114.2655,50\n0.2,22.3364,114.2655,52\n",
+    )
+    .unwrap();
+    let gps = read_gps(&path).unwrap();
+    assert_eq!(gps[0].p, Vector3::zeros());
+    assert!(gps[1].p.x.abs() < 1e-6 && (gps[1].p.y - 11.07).abs() < 0.01 && gps[1].p.z.abs() < 1e-4, "{}", gps[1].p);
+    assert!((gps[2].p - Vector3::new(0.0, 0.0, 2.0)).norm() < 1e-6, "{}", gps[2].p);
+    check(
+        "gps.csv",
+        "t,lat_deg,lon_deg,h_m\n0.0,22.3,114.2,50\n0.1,91.0,114.2,50\n",
+        read_gps,
+        expect!["DIR/gps.csv: line 3, column 2 (`lat_deg`): latitude 91 is outside [-90, 90] degrees"],
+    );
+}

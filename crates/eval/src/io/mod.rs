@@ -42,6 +42,6 @@ pub use flight_dir::{
 };
 pub use residues::{CovarianceLayout, r_column, read_residues, s_column, write_residues};
 pub use streams::{
-    ATTITUDE_COLUMNS, GPS_COLUMNS, IMU_COLUMNS, TRUTH_COLUMNS, VO_COLUMNS, read_attitude, read_gps, read_imu,
-    read_truth, read_vo, write_attitude, write_gps, write_imu, write_truth, write_vo,
+    ATTITUDE_COLUMNS, GPS_COLUMNS, GPS_GEODETIC_COLUMNS, IMU_COLUMNS, TRUTH_COLUMNS, VO_COLUMNS, read_attitude,
+    read_gps, read_imu, read_truth, read_vo, write_attitude, write_gps, write_imu, write_truth, write_vo,
 };

@@ -7,13 +7,14 @@
 //! | file | columns |
 //! |---|---|
 //! | `imu.csv` | `t, gyro_x, gyro_y, gyro_z` (rad/s, body), `accel_x, accel_y, accel_z` (m/s², body) |
-//! | `gps.csv` | `t, p_x, p_y, p_z` (m, local ENU) |
+//! | `gps.csv` | `t, p_x, p_y, p_z` (m, local ENU), or `t, lat_deg, lon_deg, h_m` (WGS-84, converted to ENU at the first fix) |
 //! | `attitude.csv` | `t, roll, pitch, yaw` (rad) |
 //! | `vo.csv` | `t, keyframe, p_rel_x, p_rel_y, p_rel_z` (m), `q_rel_roll, q_rel_pitch, q_rel_yaw` (rad) |
 //! | `truth.csv` | `t, p_x.., roll.., v_x.., b_g_x.., b_a_x..` (Model I state, eq:model1state) |
 
 use std::path::Path;
 
+use ekf_residue::geodetic::{Geodetic, LocalEnu};
 use uav_dynamics::{AttitudeSample, GpsSample, ImuSample, TruthSample, VoSample};
 
 use crate::io::atomic::write_file_atomic;
@@ -199,7 +200,67 @@ macro_rules! stream_io {
 }
 
 stream_io!(read_imu, write_imu, ImuSample, "imu.csv");
-stream_io!(read_gps, write_gps, GpsSample, "gps.csv");
 stream_io!(read_attitude, write_attitude, AttitudeSample, "attitude.csv");
 stream_io!(read_vo, write_vo, VoSample, "vo.csv");
 stream_io!(read_truth, write_truth, TruthSample, "truth.csv");
+
+/// Geodetic columns accepted in `gps.csv` instead of `p_x, p_y, p_z`.
+pub const GPS_GEODETIC_COLUMNS: [&str; 4] = ["t", "lat_deg", "lon_deg", "h_m"];
+
+/// Reads `gps.csv`: local ENU positions (`p_x, p_y, p_z`), or, when those columns are absent
+/// and `lat_deg, lon_deg, h_m` are present, WGS-84 geodetic fixes converted to the local ENU
+/// frame anchored at the first fix (paper alg:alg1, CoordinateTransformation;
+/// `ekf_residue::geodetic`).
+///
+/// # Errors
+/// [`IoError`] naming the file, line and column of the first bad value, missing column,
+/// wrong field count, non-increasing time stamp, or latitude outside [−90°, 90°].
+pub fn read_gps(path: &Path) -> Result<Vec<GpsSample>> {
+    let probe = CsvIn::open(path)?;
+    let geodetic = probe.optional_column("p_x").is_none() && probe.optional_column("lat_deg").is_some();
+    drop(probe);
+    if !geodetic {
+        return read_records(path);
+    }
+    let mut input = CsvIn::open(path)?;
+    let cols = input.columns(&GPS_GEODETIC_COLUMNS)?;
+    let mut out = Vec::new();
+    let mut enu: Option<LocalEnu> = None;
+    let mut prev_t = None;
+    while let Some(row) = input.next_row()? {
+        let t = input.time(&row, cols[0], prev_t)?;
+        let g = Geodetic {
+            lat_deg: input.f64(&row, cols[1])?,
+            lon_deg: input.f64(&row, cols[2])?,
+            h_m: input.f64(&row, cols[3])?,
+        };
+        if g.lat_deg.abs() > 90.0 {
+            return Err(input.field_error(
+                &row,
+                cols[1],
+                format!("latitude {} is outside [-90, 90] degrees", g.lat_deg),
+            ));
+        }
+        let frame = match enu {
+            Some(f) => f,
+            None => {
+                let f = LocalEnu::new(&g).map_err(|e| input.field_error(&row, cols[1], e.to_string()))?;
+                enu = Some(f);
+                f
+            }
+        };
+        let p = frame.to_enu(&g).map_err(|e| input.field_error(&row, cols[1], e.to_string()))?;
+        out.push(GpsSample { t, p });
+        prev_t = Some(t);
+    }
+    Ok(out)
+}
+
+/// Writes `gps.csv` (local ENU columns) atomically (temporary file, then rename).
+///
+/// # Errors
+/// [`IoError::Unwritable`] for a non-finite value, [`IoError::Fs`] on file-system failure;
+/// nothing is left at `path` on error.
+pub fn write_gps(path: &Path, samples: &[GpsSample]) -> Result<()> {
+    write_records(path, samples)
+}
