@@ -27,12 +27,18 @@ fn tmp_prefix(path: &Path) -> OsString {
 
 /// Writes `path` atomically: `write` receives a temporary file in the same directory and
 /// returns it once filled; it is then synced and renamed to `path` (replacing any old file).
+/// Missing parent directories are created.
 ///
 /// # Errors
 /// [`IoError::Fs`] when the temporary cannot be created, synced or renamed, or whatever
 /// `write` returns; in every error case `path` is untouched and the temporary removed.
 pub fn write_file_atomic(path: &Path, write: impl FnOnce(File) -> Result<File>) -> Result<()> {
     let dir = parent_of(path);
+    std::fs::create_dir_all(&dir).map_err(|source| IoError::Fs {
+        path: dir.clone(),
+        op: "create directory",
+        source,
+    })?;
     let tmp = tempfile::Builder::new().prefix(&tmp_prefix(path)).tempfile_in(&dir).map_err(|source| IoError::Fs {
         path: dir.clone(),
         op: "create a temporary file in",
