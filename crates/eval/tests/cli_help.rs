@@ -25,7 +25,9 @@ fn top_level_help_lists_the_commands() {
 
 #[test]
 fn simulate_help() {
-    check(&["simulate", "-h"], expect![[r#"
+    check(
+        &["simulate", "-h"],
+        expect![[r#"
         Simulate a flight from a TOML config and write its sensor streams, truth and attack labels as a flight directory
 
         Usage: quadformer simulate [OPTIONS]
@@ -39,12 +41,15 @@ fn simulate_help() {
               --print-default-config  Print the default config with every field explicit, and exit
           -h, --help                  Print help
           -V, --version               Print version
-    "#]]);
+    "#]],
+    );
 }
 
 #[test]
 fn residues_help() {
-    check(&["residues", "-h"], expect![[r#"
+    check(
+        &["residues", "-h"],
+        expect![[r#"
         Run the Model I or Model II EKF on a flight directory (simulated or your own log) and write the residue sequence r_k, S_k, NIS (and labels, if known) as CSV
 
         Usage: quadformer residues [OPTIONS] --model <MODEL> --in <DIR> --out <FILE.csv>
@@ -59,5 +64,6 @@ fn residues_help() {
               --no-labels                  Do not write a label column even if attack.csv exists
           -h, --help                       Print help (see more with '--help')
           -V, --version                    Print version
-    "#]]);
+    "#]],
+    );
 }
