@@ -13,9 +13,12 @@ use clap::{Parser, Subcommand};
 
 use crate::io::IoError;
 
+pub mod dataset;
+pub mod detect;
 pub mod reproduce_tables;
 pub mod residues;
 pub mod simulate;
+pub mod train;
 
 /// QUADFormer-rs: simulate quadrotor flights, attack their GPS, compute EKF residues and
 /// detect attacks (paper: "QUADFormer: Learning-based Detection of Cyber Attacks in Quadrotor
@@ -40,6 +43,14 @@ pub enum Command {
     /// Run the paper's experiment matrix (Model I/II × exponential/Laplace noise × Attack I/II)
     /// for every method and write Tables I and II, ROC plots, sweeps, ablations and a report.
     ReproduceTables(reproduce_tables::Args),
+    /// Build (or load from a cache) one labelled dataset cell and write its train, valid and
+    /// test flights as residue CSV files.
+    Dataset(dataset::Args),
+    /// Fit a detection method on residue CSV files (thresholds chosen on the validation files)
+    /// and save a model directory.
+    Train(train::Args),
+    /// Score a residue CSV with a trained model directory and write per-step scores and alarms.
+    Detect(detect::Args),
 }
 
 /// Runs a parsed command line.
@@ -51,6 +62,9 @@ pub fn run(cli: &Cli) -> Result<(), CliError> {
         Command::Simulate(args) => simulate::run(args),
         Command::Residues(args) => residues::run(args),
         Command::ReproduceTables(args) => reproduce_tables::run(args),
+        Command::Dataset(args) => dataset::run(args),
+        Command::Train(args) => train::run(args),
+        Command::Detect(args) => detect::run(args),
     }
 }
 
