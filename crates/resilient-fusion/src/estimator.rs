@@ -1,0 +1,428 @@
+//! Resilient state estimation, paper alg:alg3 (sec:state_estimation): fuse GPS + VO + IMU
+//! (Model II EKF, eq:model2f, eq:model2g) while no alarm is raised, fuse VO + IMU only while the
+//! detector alarms on GPS, and re-admit GPS after a clean hold time.
+//!
+//! Per measurement time `t_k` (10 Hz; the IMU propagates in between):
+//!
+//! 1. The GPS innovation against the prior `x̂_{k|k−1}` (with the simultaneous VO innovation,
+//!    channels chosen by [`ResilientConfig::detector_channels`]) is computed on a copy of the
+//!    filter and fed to the [`OnlineDetector`]. Its decision becomes available at
+//!    `t_k + latency_s` (the paper's edge device needs about 1 s).
+//! 2. Decisions whose time has come drive a two-state machine: an alarm excludes GPS
+//!    (`Admitted → Excluded`); GPS is re-admitted once no alarm has arrived for `hold_s`
+//!    (hysteresis), and on re-admission the position covariance is inflated by
+//!    `readmit_inflation_m2` so the first fixes pull the VO-drifted estimate back quickly.
+//! 3. The filter updates with VO and, unless excluded, the GPS fix (alg:alg3 lines 2–4). While
+//!    excluded the GPS innovation is still computed against the prior, so the detector keeps
+//!    watching the stream.
+//!
+//! Positions in local ENU metres, times in seconds.
+
+use std::collections::VecDeque;
+
+use ekf_residue::detector::{OnlineDecision, OnlineDetector};
+use ekf_residue::residues::{
+    Estimator, FilterConfig, GPS_CHANNELS, GpsFusion, Measurements, StateEstimate, UpdateOutcome,
+};
+use ekf_residue::series::ResidueStep;
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+use uav_dynamics::sensors::ImuSample;
+
+use crate::error::{FusionError, Result};
+
+/// What happens to the GPS fixes fused during the decision latency once an alarm arrives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Rollback {
+    /// Rewind the filter to just before the alarmed residue step and replay the buffered IMU
+    /// and VO data without GPS (default), so fixes fused during the latency leave no trace.
+    #[default]
+    ReplayWithoutGps,
+    /// Keep them: exclusion starts when the decision arrives (alg:alg3 taken literally); the
+    /// bias absorbed during the latency stays in the estimate.
+    Off,
+}
+
+/// Settings of the resilient estimator (alg:alg3 and its hysteresis).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ResilientConfig {
+    /// Delay from a residue step to the detector's decision being usable, seconds. Default 1.0
+    /// (paper sec. "Real-world Experiment": inference takes about 1 s on the edge device).
+    pub latency_s: f64,
+    /// Time without alarms before GPS is re-admitted, seconds. Default 1.0 (PX4 re-accepts GNSS
+    /// after max(1 s, EKF2_REQ_GPS_H/10) of passing checks, gnss_checks.cpp).
+    pub hold_s: f64,
+    /// Variance added to each position axis on re-admission, m². Default 1.0 (σ = 1 m, twice
+    /// the GPS σ; docs/decisions/023-resilient-fusion.md).
+    pub readmit_inflation_m2: f64,
+    /// Innovation channels the detector reads, in its order. Default the GPS channels
+    /// `gps_x gps_y gps_z`; a detector trained on Model II's stacked residue uses
+    /// `vo_x … vo_yaw gps_x gps_y gps_z`.
+    pub detector_channels: Vec<String>,
+    /// Treatment of fixes fused during the latency. Default [`Rollback::ReplayWithoutGps`]
+    /// (docs/decisions/023-resilient-fusion.md).
+    #[serde(default)]
+    pub rollback: Rollback,
+}
+
+impl Default for ResilientConfig {
+    fn default() -> Self {
+        Self {
+            latency_s: 1.0,
+            hold_s: 1.0,
+            readmit_inflation_m2: 1.0,
+            detector_channels: GPS_CHANNELS.iter().map(|s| (*s).to_string()).collect(),
+            rollback: Rollback::default(),
+        }
+    }
+}
+
+impl ResilientConfig {
+    /// Check the ranges.
+    ///
+    /// # Errors
+    /// [`FusionError::Config`] naming the field.
+    pub fn check(&self) -> Result<()> {
+        for (field, v) in [
+            ("latency_s", self.latency_s),
+            ("hold_s", self.hold_s),
+            ("readmit_inflation_m2", self.readmit_inflation_m2),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(FusionError::Config { field, msg: format!("must be finite and non-negative, got {v}") });
+            }
+        }
+        if self.detector_channels.is_empty() {
+            return Err(FusionError::Config {
+                field: "detector_channels",
+                msg: "must name at least one channel".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A detector decision waiting for its availability time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Pending {
+    t_residue: f64,
+    t_avail: f64,
+    alarm: bool,
+}
+
+/// A buffered input for replay after a rollback.
+#[derive(Debug, Clone)]
+enum Event {
+    /// An IMU sample fed with [`Estimator::imu`].
+    Imu(ImuSample),
+    /// A measurement group, with the filter state just before it was processed.
+    Meas(Measurements, Box<Estimator>),
+}
+
+/// What happened at one measurement time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FusionStep {
+    /// Time in seconds.
+    pub t: f64,
+    /// The detector's decision on this step's residue (`None` without a detector or GPS fix).
+    pub decision: Option<OnlineDecision>,
+    /// Whether GPS was excluded at this step.
+    pub gps_excluded: bool,
+    /// Whether a GPS fix was fused at this step.
+    pub gps_fused: bool,
+}
+
+/// The resilient estimator: a Model II (or Model I) EKF, an optional online detector and the
+/// exclusion state machine of the module doc.
+pub struct ResilientEstimator<'d> {
+    filter_cfg: FilterConfig,
+    cfg: ResilientConfig,
+    est: Option<Estimator>,
+    detector: Option<Box<dyn OnlineDetector + 'd>>,
+    pending: VecDeque<Pending>,
+    excluded_since: Option<f64>,
+    last_alarm_avail: f64,
+    excluded_intervals: Vec<(f64, f64)>,
+    alarm_times: Vec<f64>,
+    buffer: VecDeque<Event>,
+    n_rollbacks: usize,
+}
+
+impl std::fmt::Debug for ResilientEstimator<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ResilientEstimator")
+            .field("cfg", &self.cfg)
+            .field("initialised", &self.est.is_some())
+            .field("has_detector", &self.detector.is_some())
+            .field("excluded_since", &self.excluded_since)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<'d> ResilientEstimator<'d> {
+    /// A resilient estimator; without a detector it is the plain EKF (GPS always fused).
+    ///
+    /// # Errors
+    /// [`FusionError::Config`] from [`ResilientConfig::check`], [`FusionError::Filter`] for an
+    /// invalid filter configuration.
+    pub fn new(
+        filter_cfg: &FilterConfig,
+        cfg: &ResilientConfig,
+        detector: Option<Box<dyn OnlineDetector + 'd>>,
+    ) -> Result<Self> {
+        cfg.check()?;
+        filter_cfg.check()?;
+        Ok(Self {
+            filter_cfg: *filter_cfg,
+            cfg: cfg.clone(),
+            est: None,
+            detector,
+            pending: VecDeque::new(),
+            excluded_since: None,
+            last_alarm_avail: f64::NEG_INFINITY,
+            excluded_intervals: Vec::new(),
+            alarm_times: Vec::new(),
+            buffer: VecDeque::new(),
+            n_rollbacks: 0,
+        })
+    }
+
+    /// The current estimate (`None` before the first GPS fix with an attitude sample).
+    #[must_use]
+    pub fn estimate(&self) -> Option<StateEstimate> {
+        self.est.as_ref().map(Estimator::estimate)
+    }
+
+    /// Whether GPS is currently excluded.
+    #[must_use]
+    pub fn gps_excluded(&self) -> bool {
+        self.excluded_since.is_some()
+    }
+
+    /// Closed intervals `(start, end)` during which GPS was excluded; an exclusion still open
+    /// is closed at `t_end`.
+    #[must_use]
+    pub fn excluded_intervals(&self, t_end: f64) -> Vec<(f64, f64)> {
+        let mut v = self.excluded_intervals.clone();
+        if let Some(t0) = self.excluded_since {
+            v.push((t0, t_end.max(t0)));
+        }
+        v
+    }
+
+    /// How many times the filter was rewound and replayed without GPS.
+    #[must_use]
+    pub fn n_rollbacks(&self) -> usize {
+        self.n_rollbacks
+    }
+
+    /// Whether inputs must be buffered for a rollback.
+    fn buffering(&self) -> bool {
+        self.detector.is_some() && self.cfg.rollback == Rollback::ReplayWithoutGps && self.cfg.latency_s > 0.0
+    }
+
+    /// Residue times of every alarm the detector raised.
+    #[must_use]
+    pub fn alarm_times(&self) -> &[f64] {
+        &self.alarm_times
+    }
+
+    /// Feed the IMU sample and the (possibly attacked) measurements of one IMU step, both at
+    /// time `imu.t` (`meas.t` must equal it when `meas` holds anything).
+    ///
+    /// The filter starts at the first step with a GPS fix and an attitude sample (pose from
+    /// those, velocity `InitConfig::v0`); the VO sample of that step opens its keyframe.
+    ///
+    /// # Errors
+    /// [`FusionError::Filter`] (bad input, divergence), [`FusionError::Detect`],
+    /// [`FusionError::MissingChannel`].
+    pub fn process(&mut self, imu: &ImuSample, meas: &Measurements) -> Result<Option<FusionStep>> {
+        let has_meas = meas.gps.is_some() || meas.vo.is_some() || meas.attitude.is_some();
+        let buffering = self.buffering();
+        let Some(est) = self.est.as_mut() else {
+            if let (Some(p0), Some(q0)) = (meas.gps, meas.attitude) {
+                let mut est = Estimator::new(&self.filter_cfg, imu.t, &p0, &q0, true, Some(imu))?;
+                if meas.vo.is_some() {
+                    let vo_only = Measurements { t: meas.t, gps: None, attitude: None, vo: meas.vo };
+                    est.measure(&vo_only, GpsFusion::Fuse)?;
+                }
+                self.est = Some(est);
+            }
+            return Ok(None);
+        };
+        est.imu(imu)?;
+        if buffering {
+            self.buffer.push_back(Event::Imu(*imu));
+        }
+        if !has_meas {
+            return Ok(None);
+        }
+        let t = meas.t;
+        let mut decision = None;
+        if let (Some(det), Some(_)) = (self.detector.as_mut(), meas.gps) {
+            // alg:alg3 input A_i: the detector's verdict on this step's innovation against the
+            // prior, computed on a copy so the real update can still choose to skip GPS.
+            let mut probe = est.clone();
+            if let Some(out) = probe.measure(meas, GpsFusion::Skip)? {
+                let (r, s, nis) = select_channels(&out, &self.cfg.detector_channels)?;
+                let step = ResidueStep { t, r_k: r.as_slice(), s_k: s.as_slice(), nis };
+                let d = det.update(&step).map_err(|source| FusionError::Detect { t, source })?;
+                if d.alarm {
+                    self.alarm_times.push(t);
+                }
+                self.pending.push_back(Pending { t_residue: t, t_avail: t + self.cfg.latency_s, alarm: d.alarm });
+                decision = Some(d);
+            }
+        }
+        self.apply_decisions(t)?;
+        let excluded = self.excluded_since.is_some();
+        let fusion = if excluded { GpsFusion::Skip } else { GpsFusion::Fuse };
+        if buffering {
+            // Keep what a rollback to this step needs: the prior state and the measurements.
+            let horizon = t - self.cfg.latency_s - 1.0;
+            while let Some(Event::Imu(ImuSample { t: t_old, .. }) | Event::Meas(Measurements { t: t_old, .. }, _)) =
+                self.buffer.front()
+            {
+                if *t_old >= horizon {
+                    break;
+                }
+                self.buffer.pop_front();
+            }
+            if let Some(est) = self.est.as_ref() {
+                self.buffer.push_back(Event::Meas(*meas, Box::new(est.clone())));
+            }
+        }
+        let Some(est) = self.est.as_mut() else { return Ok(None) };
+        let out = est.measure(meas, fusion)?;
+        let gps_fused = out.is_some_and(|o| o.gps_fused);
+        Ok(Some(FusionStep { t, decision, gps_excluded: excluded, gps_fused }))
+    }
+
+    /// Apply every decision available at `t` and run the hysteresis.
+    fn apply_decisions(&mut self, t: f64) -> Result<()> {
+        // Tolerance: decision times are sums of sample times and the latency.
+        let eps = 1e-9;
+        while let Some(p) = self.pending.front().copied() {
+            if p.t_avail > t + eps {
+                break;
+            }
+            self.pending.pop_front();
+            if p.alarm {
+                self.last_alarm_avail = p.t_avail;
+                if self.excluded_since.is_none() {
+                    // alg:alg3 line 4: X ← Fuse(camera, IMU).
+                    self.excluded_since = Some(t);
+                    if self.buffering() {
+                        self.rollback_to(p.t_residue)?;
+                    }
+                }
+            }
+        }
+        if let Some(t0) = self.excluded_since
+            && t - self.last_alarm_avail >= self.cfg.hold_s - eps
+        {
+            // Re-admission: inflate the position covariance so GPS re-converges the estimate.
+            if let Some(est) = self.est.as_mut() {
+                est.inflate_position_covariance(self.cfg.readmit_inflation_m2)?;
+            }
+            self.excluded_intervals.push((t0, t));
+            self.excluded_since = None;
+        }
+        Ok(())
+    }
+}
+
+impl ResilientEstimator<'_> {
+    /// Rewind to the state before the measurement group at `t_residue` and replay every
+    /// buffered input since, fusing no GPS (the fixes from `t_residue` on are the alarmed ones).
+    fn rollback_to(&mut self, t_residue: f64) -> Result<()> {
+        let Some(start) =
+            self.buffer.iter().position(|e| matches!(e, Event::Meas(m, _) if (m.t - t_residue).abs() < 1e-9))
+        else {
+            return Ok(());
+        };
+        let Some(Event::Meas(_, ckpt)) = self.buffer.get(start) else { return Ok(()) };
+        let mut est = (**ckpt).clone();
+        for ev in self.buffer.iter_mut().skip(start) {
+            match ev {
+                Event::Imu(s) => est.imu(s)?,
+                Event::Meas(m, ck) => {
+                    **ck = est.clone();
+                    est.measure(m, GpsFusion::Skip)?;
+                }
+            }
+        }
+        self.est = Some(est);
+        self.n_rollbacks += 1;
+        Ok(())
+    }
+}
+
+/// Pick `channels` (in that order) from an innovation: the sub-vector of `r_k`, the sub-block
+/// of `S_k` (row-major) and its NIS `rᵀS⁻¹r`.
+///
+/// # Errors
+/// [`FusionError::MissingChannel`] when a channel is absent; [`FusionError::Detect`] when the
+/// sub-block is not positive definite.
+pub fn select_channels(out: &UpdateOutcome, channels: &[String]) -> Result<(Vec<f64>, Vec<f64>, f64)> {
+    let mut idx = Vec::with_capacity(channels.len());
+    for c in channels {
+        match out.channels.iter().position(|k| k == c) {
+            Some(i) => idx.push(i),
+            None => {
+                return Err(FusionError::MissingChannel {
+                    channel: c.clone(),
+                    t: out.t,
+                    available: out.channels.iter().map(|s| (*s).to_string()).collect(),
+                });
+            }
+        }
+    }
+    let m = idx.len();
+    let r = DVector::from_fn(m, |i, _| out.r_k[idx[i]]);
+    let s = DMatrix::from_fn(m, m, |i, j| out.s_k[(idx[i], idx[j])]);
+    let chol = s.clone().cholesky().ok_or_else(|| FusionError::Detect {
+        t: out.t,
+        source: ekf_residue::error::DetectError::Numerical {
+            what: "innovation covariance sub-block not positive definite".into(),
+        },
+    })?;
+    let nis = r.dot(&chol.solve(&r));
+    let s_row_major: Vec<f64> = (0..m).flat_map(|i| (0..m).map(move |j| (i, j))).map(|(i, j)| s[(i, j)]).collect();
+    Ok((r.iter().copied().collect(), s_row_major, nis))
+}
+
+/// The simplest online detector: alarm when the step's NIS exceeds a chi-squared quantile.
+///
+/// With the GPS channels (3-D) a threshold of 16.27 is the χ²₃ 0.999 quantile
+/// (shared/reference/estimation-and-detectors.md §1.1).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NisGate {
+    threshold: f64,
+}
+
+impl NisGate {
+    /// χ²₃ quantile at 1 − 0.001.
+    pub const CHI2_3_999: f64 = 16.266;
+
+    /// A gate with the given NIS threshold.
+    ///
+    /// # Errors
+    /// [`FusionError::Config`] for a non-positive or non-finite threshold.
+    pub fn new(threshold: f64) -> Result<Self> {
+        if !(threshold.is_finite() && threshold > 0.0) {
+            return Err(FusionError::Config { field: "threshold", msg: format!("must be positive, got {threshold}") });
+        }
+        Ok(Self { threshold })
+    }
+}
+
+impl OnlineDetector for NisGate {
+    fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, ekf_residue::error::DetectError> {
+        Ok(OnlineDecision { score: step.nis, alarm: step.nis > self.threshold })
+    }
+
+    fn reset(&mut self) {}
+}
