@@ -4,10 +4,10 @@
 //!
 //! `cargo run -p baselines --example textbook_thresholds`
 
-use baselines::stats::{chi2_cdf, chi2_quantile, cusum_tau_for_far};
 use baselines::sprt::wald_thresholds;
+use baselines::stats::{chi2_cdf, chi2_quantile, cusum_tau_for_far};
 use baselines::synthetic::{SyntheticAttack, SyntheticFlight};
-use baselines::{BhtConfig, Chi2Config, CusumConfig, Px4GateConfig, SprtConfig, Tuning};
+use baselines::{BhtConfig, Chi2Config, CusumConfig, Px4GateConfig, SprtConfig};
 use ekf_residue::{Confusion, Detector, Fit, LabelledResidues};
 
 fn split(seeds: &[u64], bias_m: f64) -> Result<LabelledResidues, Box<dyn std::error::Error>> {
@@ -17,12 +17,15 @@ fn split(seeds: &[u64], bias_m: f64) -> Result<LabelledResidues, Box<dyn std::er
             SyntheticAttack { start_s, end_s: start_s + 5.0, bias_m: [bias_m, 0.0, 0.0], absorb_tau_s: None }
         })
         .collect();
-    let flights = seeds.iter().map(|&s| SyntheticFlight::new(6000, s).generate(&attacks)).collect::<Result<Vec<_>, _>>()?;
+    let flights =
+        seeds.iter().map(|&s| SyntheticFlight::new(6000, s).generate(&attacks)).collect::<Result<Vec<_>, _>>()?;
     Ok(LabelledResidues::new(flights)?)
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    println!("| m | chi2 alpha (1% FAR) | CUSUM b = 1.5m | CUSUM tau (1% FAR) | SPRT A, B (a = b = 1%) | BHT gamma (N = 1, 1% FAR) |");
+    println!(
+        "| m | chi2 alpha (1% FAR) | CUSUM b = 1.5m | CUSUM tau (1% FAR) | SPRT A, B (a = b = 1%) | BHT gamma (N = 1, 1% FAR) |"
+    );
     println!("|---|---|---|---|---|---|");
     for m in [3.0, 6.0] {
         let b = 1.5 * m;
@@ -59,7 +62,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ];
         for (d, setting) in rows {
             let c = f1(d)?;
-            println!("| {bias} m | {} | {setting} | {:.3} | {:.3} | {:.3} |", d.name(), c.precision(), c.recall(), c.f1());
+            println!(
+                "| {bias} m | {} | {setting} | {:.3} | {:.3} | {:.3} |",
+                d.name(),
+                c.precision(),
+                c.recall(),
+                c.f1()
+            );
         }
     }
     Ok(())

@@ -78,12 +78,9 @@ impl Bht {
     fn d2(&self, r_k: &[f64]) -> f64 {
         let m = self.mu.len();
         let mut acc = 0.0;
-        for i in 0..m {
-            let row = &self.whiten[i * m..i * m + i + 1];
-            let mut y = 0.0;
-            for (j, w) in row.iter().enumerate() {
-                y += w * (r_k[j] - self.mu[j]);
-            }
+        // Row i of L⁻¹ has non-zeros in columns 0..=i only.
+        for (i, row) in self.whiten.chunks_exact(m).enumerate() {
+            let y: f64 = row[..=i].iter().zip(r_k).zip(&self.mu).map(|((w, r), mu)| w * (r - mu)).sum();
             acc += y * y;
         }
         acc
@@ -107,7 +104,7 @@ impl Window {
     fn push(&mut self, d2: f64) -> f64 {
         let n = self.buf.len();
         self.buf[self.next] = d2;
-        self.next = (self.next + 1) % n;
+        self.next = if self.next + 1 == n { 0 } else { self.next + 1 };
         self.filled = (self.filled + 1).min(n);
         // Summing the ring (N ≤ a few tens) avoids the drift of a running sum.
         self.buf.iter().sum::<f64>() / self.filled as f64

@@ -16,7 +16,8 @@
 //!
 //! Textbook setting: `b = 1.5·m` (drift `−m/2` under H0) and `τ` from the Markov chain for a
 //! 1 % false-alarm rate under `χ²_m` increments. Validation setting: `b` from a grid of multiples
-//! of the clean validation mean NIS, `τ` from quantiles of the unreset statistic, maximising F1.
+//! of the clean validation mean NIS, `τ` from quantiles of the unreset statistic and a log-spaced grid,
+//! maximising F1 (ties to the largest `b` and the median tied `τ`).
 
 use ekf_residue::{
     DetectError, Detector, Fit, LabelledResidues, OnlineDecision, OnlineDetector, ResidueSeries, ResidueStep,
@@ -44,7 +45,9 @@ pub struct CusumConfig {
     /// Validation grid of `b` as multiples of the clean mean NIS. Default
     /// `[1.05, 1.2, 1.5, 2, 3, 5, 10]` (from "barely negative drift" to chi-squared-like).
     pub b_grid: Vec<f64>,
-    /// Number of `τ` candidates per `b` (quantiles of the unreset statistic). Default 48.
+    /// Number of `τ` candidates per `b`: quantiles of the unreset statistic, plus half as many
+    /// log-spaced values from a tenth of the clean mean NIS to the statistic's maximum.
+    /// Default 48.
     pub n_tau: usize,
 }
 
@@ -140,7 +143,8 @@ impl CusumConfig {
             .collect();
         // Mean NIS of clean steps, E0[z]; falls back to m when the split has no clean step.
         let z0 = if clean.is_empty() { m } else { clean.iter().sum::<f64>() / clean.len() as f64 };
-        let mut best: Option<(f64, f64, f64)> = None;
+        // (F1, b, τ) of every candidate.
+        let mut cands: Vec<(f64, f64, f64)> = Vec::new();
         let mut buf = Vec::new();
         for &ratio in &self.b_grid {
             let b = ratio * z0;
@@ -151,17 +155,29 @@ impl CusumConfig {
                 cusum_scores(s.nis(), b, f64::INFINITY, &mut buf);
                 unreset.extend(buf.iter().copied().filter(|v| *v > 0.0));
             }
-            for tau in quantile_grid(&unreset, self.n_tau) {
+            // Quantiles alone miss low τ when positive values come almost only from attacks
+            // (large b): add a log-spaced grid from z0/10 up to the largest value.
+            let mut taus = quantile_grid(&unreset, self.n_tau);
+            let top = unreset.iter().copied().fold(z0, f64::max);
+            let n_log = self.n_tau / 2;
+            taus.extend((0..n_log).map(|i| 0.1 * z0 * (top / (0.1 * z0)).powf(i as f64 / (n_log.max(2) - 1) as f64)));
+            taus.sort_by(f64::total_cmp);
+            taus.dedup();
+            for tau in taus {
                 let f1 = f1_of(pairs, |s, out| {
                     let mut st = CusumState::default();
                     out.extend(s.nis().iter().map(|&z| st.step(z, b, tau).1));
                 });
-                if best.is_none_or(|(f, _, _)| f1 > f) {
-                    best = Some((f1, b, tau));
-                }
+                cands.push((f1, b, tau));
             }
         }
-        best.map(|(_, b, tau)| (b, tau)).ok_or_else(|| {
+        // Ties (common when attacks are gross) go to the largest b, the most negative H0 drift,
+        // and then to the median tied τ, away from both edges of the tied range.
+        let best_f1 = cands.iter().map(|c| c.0).fold(f64::NEG_INFINITY, f64::max);
+        let tied: Vec<&(f64, f64, f64)> = cands.iter().filter(|c| c.0 >= best_f1 - 1e-12).collect();
+        let b = tied.iter().map(|c| c.1).fold(f64::NEG_INFINITY, f64::max);
+        let taus: Vec<f64> = tied.iter().filter(|c| c.1 == b).map(|c| c.2).collect();
+        taus.get(taus.len() / 2).map(|&tau| (b, tau)).ok_or_else(|| {
             DetectError::Data { msg: "CUSUM statistic never left 0 on the validation split".into() }.into()
         })
     }

@@ -123,9 +123,10 @@ impl GateState {
 }
 
 fn gate_run(gate: &Px4Gate, gamma: f64, series: &ResidueSeries, mut sink: impl FnMut(f64, bool)) {
+    let m = series.dim();
     let mut st = GateState::new(gate.gps_idx.len());
-    for step in series.steps() {
-        let (s, a) = st.step(gate, gamma, step.t, step.r_k, step.s_k);
+    for ((&t, r_k), s_k) in series.t().iter().zip(series.r().chunks_exact(m)).zip(series.s().chunks_exact(m * m)) {
+        let (s, a) = st.step(gate, gamma, t, r_k, s_k);
         sink(s, a);
     }
 }

@@ -123,9 +123,10 @@ impl SprtState {
 }
 
 fn sprt_run(series: &ResidueSeries, delta: f64, upper: f64, lower: f64, mut sink: impl FnMut(f64, bool)) {
-    let mut st = SprtState::new(series.dim());
-    for step in series.steps() {
-        let (s, a) = st.step(step.r_k, step.s_k, delta, upper, lower);
+    let m = series.dim();
+    let mut st = SprtState::new(m);
+    for (r_k, s_k) in series.r().chunks_exact(m).zip(series.s().chunks_exact(m * m)) {
+        let (s, a) = st.step(r_k, s_k, delta, upper, lower);
         sink(s, a);
     }
 }
