@@ -4,9 +4,9 @@
 //!
 //! Output (written atomically): `t` (s, the residue step's time), `score` (the method's anomaly
 //! score, higher = more anomalous; for QUADFormer the scoring mode chosen on validation, paper
-//! eq:anomaly_score family), `alarm` (`1` when `score > threshold`, the threshold chosen on
+//! sec:attack_detector, alg:alg2), `alarm` (`1` when `score > threshold`, the threshold chosen on
 //! validation), and `label` when the input has one; then precision, recall and F1 of the alarms
-//! (per step, no point adjustment, decision 060) are printed to stderr.
+//! (eq:precision, eq:recall, eq:F1; per step, no point adjustment, decision 060) are printed to stderr.
 //!
 //! QUADFormer is loaded from its checkpoint (size, SHA-256, tensor names and shapes checked);
 //! the other methods are re-fitted from the training data recorded in the model directory
