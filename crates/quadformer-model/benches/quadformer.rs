@@ -1,2 +1,89 @@
-//! Criterion benchmarks (filled in below).
-fn main() {}
+//! Criterion benchmarks of QUADFormer at the default size (`l` = 100, `d_model` 64, 3 layers,
+//! one head, `m` = 6 residue channels): streaming decision latency (one new residue) and
+//! training throughput (one min-max AdamW step on a batch of 32 windows).
+//!
+//! Run with `cargo bench -p quadformer-model`; figures go to docs/performance.md.
+
+// A benchmark harness aborts on setup failure; unwrapping is the clearest way to say so.
+#![allow(clippy::unwrap_used)]
+
+use candle_core::{Device, Tensor};
+use candle_nn::{AdamW, Optimizer, ParamsAdamW};
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use ekf_residue::{Fit, LabelledResidues, LabelledSeries, ResidueSeries};
+use quadformer_model::model::MinMaxTrainer;
+use quadformer_model::{Batch, LossConfig, NetConfig, QuadFormerConfig, QuadFormerNet, TrainableModel, tune_allocator};
+use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
+
+const M: usize = 6;
+const L: usize = 100;
+
+fn flight(n: usize, seed: u64) -> LabelledSeries {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let labels: Vec<bool> = (0..n).map(|k| k % 200 >= 170).collect();
+    let r: Vec<f64> = labels
+        .iter()
+        .flat_map(|&a| (0..M).map(|_| rng.random_range(-1.0..1.0) + if a { 3.0 } else { 0.0 }).collect::<Vec<_>>())
+        .collect();
+    let s: Vec<f64> = (0..n).flat_map(|_| (0..M * M).map(|i| if i % (M + 1) == 0 { 1.0 } else { 0.0 })).collect();
+    let channels = (0..M).map(|c| format!("r{c}")).collect();
+    let series = ResidueSeries::from_flat((0..n).map(|k| k as f64 * 0.1).collect(), channels, r, s).unwrap();
+    LabelledSeries::new(series, Some(labels)).unwrap()
+}
+
+fn streaming(c: &mut Criterion) {
+    tune_allocator();
+    let split = LabelledResidues::new(vec![flight(600, 1)]).unwrap();
+    let mut cfg = QuadFormerConfig::default();
+    cfg.train.epochs = 1;
+    cfg.train.max_windows_per_epoch = Some(32);
+    cfg.train.progress = false;
+    let det = cfg.fit(&split, &split).unwrap();
+    let f = flight(400, 2);
+    let steps: Vec<_> = f.series().steps().collect();
+    let mut online = det.online_quadformer();
+    for s in &steps[..L] {
+        ekf_residue::OnlineDetector::update(&mut online, s).unwrap();
+    }
+    let mut k = L;
+    c.bench_function("streaming decision (l=100, d_model=64, 3 layers, m=6)", |b| {
+        b.iter(|| {
+            k = if k + 1 >= steps.len() { L } else { k + 1 };
+            ekf_residue::OnlineDetector::update(&mut online, &steps[k]).unwrap()
+        })
+    });
+}
+
+fn training(c: &mut Criterion) {
+    tune_allocator();
+    let net = QuadFormerNet::new(&NetConfig::default(), L, M, 0).unwrap();
+    let trainer = MinMaxTrainer { net: &net, loss: LossConfig::default() };
+    let mut opt = AdamW::new(net.varmap().all_vars(), ParamsAdamW::default()).unwrap();
+    let b = 32;
+    let mut rng = StdRng::seed_from_u64(3);
+    let x: Vec<f32> = (0..b * L * M).map(|_| rng.random_range(-1.0f32..1.0)).collect();
+    let y: Vec<f32> = (0..b * L).map(|i| if i % 9 == 0 { 1.0 } else { 0.0 }).collect();
+    let batch = Batch {
+        x: Tensor::from_vec(x, (b, L, M), &Device::Cpu).unwrap(),
+        y: Tensor::from_vec(y, (b, L), &Device::Cpu).unwrap(),
+        mask: Tensor::ones((b, L), candle_core::DType::F32, &Device::Cpu).unwrap(),
+        n_labelled: b * L,
+    };
+    let mut group = c.benchmark_group("training");
+    group.sample_size(20);
+    group.throughput(Throughput::Elements(b as u64));
+    group.bench_function("min-max AdamW step, batch 32 windows (elements = windows)", |bch| {
+        bch.iter(|| {
+            let loss = trainer.loss(&batch, 0).unwrap();
+            opt.backward_step(&loss).unwrap();
+        })
+    });
+    group.bench_function("forward only, batch 32 windows (elements = windows)", |bch| {
+        bch.iter(|| net.forward(&batch.x).unwrap())
+    });
+    group.finish();
+}
+
+criterion_group!(benches, streaming, training);
+criterion_main!(benches);
