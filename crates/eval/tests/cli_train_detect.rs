@@ -279,3 +279,79 @@ fn help_says_how_each_method_is_stored() {
         assert!(text.lines().any(|l| l.trim_start().starts_with(cmd)), "{text}");
     }
 }
+
+fn check_help(args: &[&str], expect: expect_test::Expect) {
+    let o = Command::new(env!("CARGO_BIN_EXE_quadformer")).args(args).env("COLUMNS", "100").output().unwrap();
+    assert!(o.status.success());
+    expect.assert_eq(&String::from_utf8(o.stdout).unwrap());
+}
+
+#[test]
+fn dataset_help() {
+    check_help(
+        &["dataset", "-h"],
+        expect_test::expect![[r#"
+        Build (or load from a cache) one labelled dataset cell and write its train, valid and test flights as residue CSV files
+
+        Usage: quadformer dataset [OPTIONS] --cell <CELL> --out <DIR>
+
+        Options:
+              --cell <CELL>            Cell of the experiment matrix: m1|m2 - gaussian|exponential|laplace - a1|a2, e.g. `m1-exponential-a1` (UAV Model I, exponential GPS noise, Attack I)
+              --quick                  CI-sized cell (3,000 / 1,000 / 1,000 residue steps, 60 s flights) instead of the paper's (83,700 / 18,700 / 18,700 steps, 150 s flights)
+              --seed <SEED>            Dataset seed (routes, sensor noise, attacks and the labelled subset derive from it) [default: 0]
+              --labelled-fraction <F>  Fraction of training flights whose labels are written (the rest have no label column) [default: 0.1]
+              --cache <DIR>            Cache directory: the cell is loaded from it when a valid cache file exists, else built and cached there (the same cache `reproduce-tables` keeps under `OUT/datasets`)
+              --out <DIR>              Output directory (must not exist or be empty, unless `--force`)
+              --force                  Replace a non-empty output directory
+          -h, --help                   Print help
+          -V, --version                Print version
+    "#]],
+    );
+}
+
+#[test]
+fn train_help() {
+    check_help(
+        &["train", "-h"],
+        expect_test::expect![[r#"
+        Fit a detection method on residue CSV files (thresholds chosen on the validation files) and save a model directory
+
+        Usage: quadformer train [OPTIONS] --method <METHOD> --train <DIR> --valid <DIR> --out <MODEL_DIR>
+
+        Options:
+              --method <METHOD>     Method: quadformer, cusum, sprt, bht, chi2, px4-gate, svm, cnn or lstm
+              --train <DIR>         Directory of training residue CSVs (every `*.csv`; labels optional)
+              --valid <DIR>         Directory of validation residue CSVs (every `*.csv`; labels required): thresholds are chosen here
+              --out <MODEL_DIR>     Output model directory (must not exist or be empty, unless `--force`)
+              --config <FILE.toml>  Method configurations (TOML with sections [quadformer], [cusum], [sprt], [bht], [svm], [cnn], [lstm], [chi2], [px4_gate]; keys left out keep the base values, the defaults or, with `--quick`, the quick ones)
+              --quick               Small networks and few epochs (as `reproduce-tables --quick`): a smoke test
+              --seed <SEED>         Seed of the method's random parts [default: 0]
+              --force               Replace a non-empty output directory
+          -h, --help                Print help
+          -V, --version             Print version
+
+        Model directory: QUADFormer is saved as a checkpoint (quadformer.json + quadformer.safetensors). The other methods (cusum, sprt, bht, chi2, px4-gate, svm, cnn, lstm) have no save format: the model directory keeps their configuration and a copy of the training and validation residues, and `quadformer detect` re-fits them from it (deterministic for a given seed). See docs/cli.md and decision 081.
+    "#]],
+    );
+}
+
+#[test]
+fn detect_help() {
+    check_help(
+        &["detect", "-h"],
+        expect_test::expect![[r#"
+        Score a residue CSV with a trained model directory and write per-step scores and alarms
+
+        Usage: quadformer detect --model <MODEL_DIR> --in <FILE.csv> --out <ALARMS.csv>
+
+        Options:
+              --model <MODEL_DIR>  Model directory written by `quadformer train`
+              --in <FILE.csv>      Residue CSV to score (its channels must equal the model's training channels)
+              --out <ALARMS.csv>   Output alarm CSV: t, score, alarm[, label] (written atomically)
+          -h, --help               Print help
+          -V, --version            Print version
+
+        QUADFormer models load from their checkpoint; the other methods are re-fitted from the training data recorded in the model directory (see `quadformer train --help`, docs/cli.md).
+    "#]],
+    );
+}
