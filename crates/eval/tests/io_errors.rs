@@ -84,6 +84,9 @@ fn columns_in_any_order_extra_columns_and_comments_are_accepted() {
     let path = tmp.path().join("gps.csv");
     std::fs::write(&path, "# exported from a log\np_z, t, p_y, p_x, hdop\n3, 0.5, 2, 1, 0.9\n").unwrap();
     assert_eq!(read_gps(&path).unwrap(), vec![GpsSample { t: 0.5, p: Vector3::new(1.0, 2.0, 3.0) }]);
+    // A spreadsheet export: byte-order mark and CRLF line ends.
+    std::fs::write(&path, "\u{feff}t,p_x,p_y,p_z\r\n0.5,1,2,3\r\n").unwrap();
+    assert_eq!(read_gps(&path).unwrap(), vec![GpsSample { t: 0.5, p: Vector3::new(1.0, 2.0, 3.0) }]);
 }
 
 #[test]

@@ -51,7 +51,12 @@ impl CsvIn {
             return Err(IoError::Header { path: path.to_owned(), line: 1, msg: "empty file: no header line".into() });
         }
         let header_line = rec.position().map_or(1, csv::Position::line);
-        let header: Vec<String> = rec.iter().map(str::to_owned).collect();
+        // A UTF-8 byte-order mark (spreadsheet exports) is not part of the first name.
+        let header: Vec<String> = rec
+            .iter()
+            .enumerate()
+            .map(|(i, h)| if i == 0 { h.trim_start_matches('\u{feff}') } else { h }.to_owned())
+            .collect();
         for (i, name) in header.iter().enumerate() {
             if name.is_empty() {
                 return Err(IoError::Header {
