@@ -558,8 +558,12 @@ fn write_report(
     let _ = writeln!(s, "Mode: {mode}. Seeds: {}. Runs: {}. Wall time of this invocation: {wall_s:.0} s.", opts.seeds, records.len());
     let _ = writeln!(
         s,
-        "Model II channels: {:?}. Labelled fraction of training flights: {}.\n",
-        opts.config.model2_channels, opts.config.labelled_fraction
+        "Model II channels: {}. Labelled fraction of training flights: {}.\n",
+        match opts.config.model2_channels {
+            Model2Channels::VoGps => "VO + GPS innovation (9 channels)",
+            Model2Channels::Vo => "VO innovation only (6 channels, as the paper)",
+        },
+        opts.config.labelled_fraction
     );
     let _ = writeln!(s, "Every number here was produced by this run; thresholds and hyper-parameters were chosen on the validation split; metrics are per step without point adjustment.\n");
     let _ = writeln!(s, "## Tables\n");
@@ -577,16 +581,24 @@ fn write_report(
     let _ = writeln!(s, "![CUSUM](figures/cusum-post-attack.png)\n\n{cusum_note}\n");
     let _ = writeln!(s, "## F1 against attack amplitude\n");
     let _ = writeln!(s, "![sweep](figures/f1-vs-amplitude.png)\n");
-    let mut sigmas: Vec<f64> = sweep.iter().map(|p| p.sigma).collect();
-    sigmas.dedup();
+    let mut sigmas: Vec<f64> = Vec::new();
+    for p in sweep {
+        if !sigmas.contains(&p.sigma) {
+            sigmas.push(p.sigma);
+        }
+    }
     let _ = write!(s, "| method |");
     for sg in &sigmas {
         let _ = write!(s, " {sg} σ |");
     }
     let _ = writeln!(s);
     let _ = writeln!(s, "|---|{}", "---|".repeat(sigmas.len()));
-    let mut methods: Vec<&str> = sweep.iter().map(|p| p.method.as_str()).collect();
-    methods.dedup();
+    let mut methods: Vec<&str> = Vec::new();
+    for p in sweep {
+        if !methods.contains(&p.method.as_str()) {
+            methods.push(&p.method);
+        }
+    }
     for m in methods {
         let _ = write!(s, "| {m} |");
         for sg in &sigmas {
