@@ -174,15 +174,47 @@ fn combine(p: f64, a: f64, crit_scale: f64) -> f64 {
     0.5 * p + 0.5 * a / (a + crit_scale)
 }
 
-/// Per-window per-step raw scores `(alg2, at, class)`, each `b·l` row-major.
-fn window_scores(net: &QuadFormerNet, x: &Tensor, temperature: f64) -> candle_core::Result<[Vec<f32>; 3]> {
+/// Which raw scores to compute (streaming computes only what its mode needs).
+#[derive(Debug, Clone, Copy)]
+struct Need {
+    alg2: bool,
+    at: bool,
+    class: bool,
+}
+
+impl Need {
+    const ALL: Need = Need { alg2: true, at: true, class: true };
+
+    fn for_mode(mode: ScoreMode) -> Self {
+        match mode {
+            ScoreMode::Alg2 => Need { alg2: true, at: false, class: false },
+            ScoreMode::AnomalyTransformer => Need { alg2: false, at: true, class: false },
+            ScoreMode::Classifier => Need { alg2: false, at: false, class: true },
+            ScoreMode::Combined => Need { alg2: false, at: true, class: true },
+        }
+    }
+}
+
+/// Per-window per-step raw scores `(alg2, at, class)`, each `b·l` row-major (empty when not
+/// needed).
+fn window_scores(net: &QuadFormerNet, x: &Tensor, temperature: f64, need: Need) -> candle_core::Result<[Vec<f32>; 3]> {
     let out = net.forward(x)?;
-    let neg_tcd = QuadFormerNet::tcd(&out, false, false)?.neg()?;
-    let alg2 = candle_nn::ops::softmax(&neg_tcd, D::Minus1)?;
-    let err = (&out.r_hat - x)?.sqr()?.mean(D::Minus1)?;
-    let at = (candle_nn::ops::softmax(&(neg_tcd * temperature)?, D::Minus1)? * err)?;
-    let class = candle_nn::ops::sigmoid(&out.logits)?;
-    Ok([alg2.flatten_all()?.to_vec1()?, at.flatten_all()?.to_vec1()?, class.flatten_all()?.to_vec1()?])
+    let mut res: [Vec<f32>; 3] = Default::default();
+    if need.alg2 || need.at {
+        let neg_tcd = QuadFormerNet::tcd(&out, false, false)?.neg()?;
+        if need.alg2 {
+            res[0] = candle_nn::ops::softmax(&neg_tcd, D::Minus1)?.flatten_all()?.to_vec1()?;
+        }
+        if need.at {
+            let err = (&out.r_hat - x)?.sqr()?.mean(D::Minus1)?;
+            let at = (candle_nn::ops::softmax(&(neg_tcd * temperature)?, D::Minus1)? * err)?;
+            res[1] = at.flatten_all()?.to_vec1()?;
+        }
+    }
+    if need.class {
+        res[2] = candle_nn::ops::sigmoid(&out.logits)?.flatten_all()?.to_vec1()?;
+    }
+    Ok(res)
 }
 
 /// Stitched raw scores of a whole series.
@@ -198,7 +230,7 @@ fn raw_scores(
     let idx: Vec<usize> = (0..windows.len()).collect();
     for chunk in idx.chunks(score.batch_size) {
         let batch = windows.batch(chunk, &Device::Cpu)?;
-        let parts = window_scores(net, &batch.x, score.temperature)?;
+        let parts = window_scores(net, &batch.x, score.temperature, Need::ALL)?;
         for (a, p) in acc.iter_mut().zip(parts) {
             a.extend(p);
         }
@@ -426,10 +458,11 @@ impl<'a> OnlineQuadFormer<'a> {
             self.x[k * m..(k + 1) * m].copy_from_slice(row);
         }
         let x = Tensor::from_slice(&self.x, (1, l, m), &Device::Cpu)?;
-        let [alg2, at, class] = window_scores(&self.det.net, &x, self.det.config.score.temperature)?;
+        let mode = self.det.chosen.mode;
+        let [alg2, at, class] = window_scores(&self.det.net, &x, self.det.config.score.temperature, Need::for_mode(mode))?;
         let last = l - 1;
-        let pick = |v: &[f32]| f64::from(v[last]);
-        Ok(match self.det.chosen.mode {
+        let pick = |v: &[f32]| v.get(last).map_or(f64::NAN, |s| f64::from(*s));
+        Ok(match mode {
             ScoreMode::Alg2 => pick(&alg2),
             ScoreMode::AnomalyTransformer => pick(&at),
             ScoreMode::Classifier => pick(&class),

@@ -168,6 +168,22 @@ fn online_matches_batch_on_one_window_and_checks_input() {
 }
 
 #[test]
+fn online_matches_batch_in_every_mode() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("qf.json");
+    fitted().save(&path).unwrap();
+    let f = flight(L, 32, 4.0, false);
+    for r in fitted().mode_results() {
+        let mut det = QuadFormerDetector::load(&path).unwrap();
+        det.chosen = *r;
+        let batch = det.score(f.series()).unwrap();
+        let mut online = det.online();
+        let last = f.series().steps().map(|s| online.update(&s).unwrap()).last().unwrap();
+        assert!((last.score - batch[L - 1]).abs() < 1e-6, "{:?}: {} vs {}", r.mode, last.score, batch[L - 1]);
+    }
+}
+
+#[test]
 fn wrong_channels_and_unlabelled_validation_are_errors() {
     let det = fitted();
     let other = flight(50, 1, 0.0, false).series().select_channels(&["gps_x", "gps_y"]).unwrap();
