@@ -10,7 +10,7 @@ use uav_dynamics::trajectory::{RandomRoute, RandomRouteConfig, ShapeConfig, squa
 
 fn bench_simulate(c: &mut Criterion) {
     let cfg = SimConfig::default();
-    let route = RandomRoute::new(&RandomRouteConfig::default(), 1).unwrap_or_else(|e| panic!("{e}"));
+    let Ok(route) = RandomRoute::new(&RandomRouteConfig::default(), 1) else { return };
     let duration_s = 60.0;
     let mut g = c.benchmark_group("simulate");
     g.throughput(Throughput::Elements(12_001));
@@ -19,7 +19,7 @@ fn bench_simulate(c: &mut Criterion) {
     });
     g.finish();
 
-    let sq = square(&ShapeConfig::default()).unwrap_or_else(|e| panic!("{e}"));
+    let Ok(sq) = square(&ShapeConfig::default()) else { return };
     let mut g = c.benchmark_group("closed_loop");
     g.throughput(Throughput::Elements(1000));
     g.bench_function("step_x1000", |b| {

@@ -375,7 +375,8 @@ impl SensorModel {
         let f_body = Vector3::new(0.0, 0.0, kin.att.thrust);
         let accel = f_body + self.b_a + noise.sample3(&mut self.rng, &self.accel_sigma);
         let imu = ImuSample { t, gyro, accel };
-        let gps = k.is_multiple_of(self.cfg.imu_per_gps)
+        let gps = k
+            .is_multiple_of(self.cfg.imu_per_gps)
             .then(|| GpsSample { t, p: kin.p + noise.sample3(&mut self.rng, &Vector3::from(c.gps_sigma_m)) });
         let attitude = k.is_multiple_of(self.cfg.imu_per_attitude).then(|| AttitudeSample {
             t,
