@@ -184,3 +184,46 @@ fn help_is_available_everywhere() {
     let o = quadformer(&["residues", "--model", "III", "--in", "x", "--out", "y"]);
     assert_eq!(o.status.code(), Some(2), "usage errors exit with 2");
 }
+
+#[test]
+fn own_log_without_config_truth_or_attack_works() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flight = simulate(tmp.path(), "flight");
+    // A user's log: only the streams Model I needs, columns reordered, an extra column, a
+    // comment line; no config.toml (default filter), no attack.csv (no labels).
+    let own = tmp.path().join("own");
+    std::fs::create_dir(&own).unwrap();
+    std::fs::copy(flight.join("imu.csv"), own.join("imu.csv")).unwrap();
+    std::fs::copy(flight.join("attitude.csv"), own.join("attitude.csv")).unwrap();
+    let gps = std::fs::read_to_string(flight.join("gps.csv")).unwrap();
+    let mut text = String::from("# exported from a flight log\nsats,p_z,p_y,p_x,t\n");
+    for line in gps.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        text.push_str(&format!("12,{},{},{},{}\n", f[3], f[2], f[1], f[0]));
+    }
+    std::fs::write(own.join("gps.csv"), text).unwrap();
+
+    let csv = tmp.path().join("r.csv");
+    let est = tmp.path().join("est.csv");
+    let o = quadformer(&[
+        "residues",
+        "--model",
+        "I",
+        "--in",
+        own.to_str().unwrap(),
+        "--out",
+        csv.to_str().unwrap(),
+        "--estimates",
+        est.to_str().unwrap(),
+        "--covariance",
+        "full",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("unlabelled"), "{}", stderr(&o));
+    let res = read_residues(&csv).unwrap();
+    assert_eq!(res.labels(), None);
+    assert_eq!(res.series().len(), 200);
+    let estimates = eval::io::read_truth(&est).unwrap();
+    assert_eq!(estimates.len(), res.series().len());
+    assert_eq!(estimates[0].t, res.series().t()[0]);
+}
