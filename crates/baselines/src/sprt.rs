@@ -108,15 +108,16 @@ impl SprtState {
         let m = r_k.len();
         let half_d2 = 0.5 * delta * delta;
         let mut score = f64::NEG_INFINITY;
-        for (i, (&r, pair)) in r_k.iter().zip(self.lambda.chunks_exact_mut(2)).enumerate() {
-            let nu = r / s_k[i * m + i].sqrt();
-            let l = delta * nu;
+        // The diagonal of the row-major S_k is every (m + 1)-th entry.
+        let diag = s_k.iter().step_by(m + 1);
+        for ((&r, &s_ii), pair) in r_k.iter().zip(diag).zip(self.lambda.chunks_exact_mut(2)) {
+            let l = delta * r / s_ii.sqrt();
             // l_k = σ·δ·ν_i − δ²/2 for σ = ±1.
-            for (lam, l_k) in pair.iter_mut().zip([l - half_d2, -l - half_d2]) {
-                let v = *lam + l_k;
-                score = score.max(v);
-                *lam = if v <= lower || v > upper { 0.0 } else { v };
-            }
+            let v_pos = pair[0] + l - half_d2;
+            let v_neg = pair[1] - l - half_d2;
+            score = score.max(v_pos.max(v_neg));
+            pair[0] = if v_pos <= lower || v_pos > upper { 0.0 } else { v_pos };
+            pair[1] = if v_neg <= lower || v_neg > upper { 0.0 } else { v_neg };
         }
         (score, score > upper)
     }
