@@ -113,11 +113,15 @@ pub fn validate(streams: &SensorStreams) -> Result<(), FilterError> {
 /// As [`validate`]; [`FilterError::Config`] for a negative or non-finite `tolerance_s`.
 pub fn align(streams: &SensorStreams, tolerance_s: f64) -> Result<Vec<AlignedEvent>, FilterError> {
     if !(tolerance_s.is_finite() && tolerance_s >= 0.0) {
-        return Err(FilterError::Config { field: "pair_tolerance_s", msg: format!("must be finite and ≥ 0, got {tolerance_s}") });
+        return Err(FilterError::Config {
+            field: "pair_tolerance_s",
+            msg: format!("must be finite and ≥ 0, got {tolerance_s}"),
+        });
     }
     validate(streams)?;
     // Measurement samples as (t, stream id, idx), stably sorted by time then stream order.
-    let mut meas: Vec<(f64, u8, usize)> = Vec::with_capacity(streams.gps.len() + streams.attitude.len() + streams.vo.len());
+    let mut meas: Vec<(f64, u8, usize)> =
+        Vec::with_capacity(streams.gps.len() + streams.attitude.len() + streams.vo.len());
     meas.extend(streams.gps.iter().enumerate().map(|(i, s)| (s.t, 0u8, i)));
     meas.extend(streams.attitude.iter().enumerate().map(|(i, s)| (s.t, 1u8, i)));
     meas.extend(streams.vo.iter().enumerate().map(|(i, s)| (s.t, 2u8, i)));
@@ -165,11 +169,16 @@ mod tests {
 
     #[test]
     fn groups_and_orders() {
-        let imu = (0..5).map(|k| ImuSample { t: 0.05 * f64::from(k), gyro: Vector3::zeros(), accel: Vector3::zeros() }).collect();
+        let imu = (0..5)
+            .map(|k| ImuSample { t: 0.05 * f64::from(k), gyro: Vector3::zeros(), accel: Vector3::zeros() })
+            .collect();
         let streams = SensorStreams {
             imu,
             gps: vec![GpsSample { t: 0.1, p: Vector3::zeros() }],
-            attitude: vec![AttitudeSample { t: 0.1005, q: Vector3::zeros() }, AttitudeSample { t: 0.12, q: Vector3::zeros() }],
+            attitude: vec![
+                AttitudeSample { t: 0.1005, q: Vector3::zeros() },
+                AttitudeSample { t: 0.12, q: Vector3::zeros() },
+            ],
             vo: vec![],
         };
         let ev = align(&streams, DEFAULT_TOLERANCE_S).unwrap();

@@ -104,7 +104,8 @@ impl<const N: usize> Ekf<N> {
         let asym = (p0 - p0.transpose()).abs().max();
         // Positive semi-definite is enough (a cloned keyframe makes P singular): test P0 + εI.
         let eps = 1e-12 * (1.0 + p0.abs().max());
-        if asym > 1e-9 * (1.0 + p0.abs().max()) || Cholesky::new(p0 + SMatrix::<f64, N, N>::identity() * eps).is_none() {
+        if asym > 1e-9 * (1.0 + p0.abs().max()) || Cholesky::new(p0 + SMatrix::<f64, N, N>::identity() * eps).is_none()
+        {
             return Err(FilterError::NotPositiveDefinite { t: 0.0, what: "initial covariance P0" });
         }
         Ok(Self { x: x0, p: p0, cov_update, guard, n_absurd: 0 })
@@ -151,7 +152,12 @@ impl<const N: usize> Ekf<N> {
     ///
     /// # Errors
     /// As [`Ekf::predict`].
-    pub fn set_prior(&mut self, x_prior: SVector<f64, N>, p_prior: SMatrix<f64, N, N>, t: f64) -> Result<(), FilterError> {
+    pub fn set_prior(
+        &mut self,
+        x_prior: SVector<f64, N>,
+        p_prior: SMatrix<f64, N, N>,
+        t: f64,
+    ) -> Result<(), FilterError> {
         if !x_prior.iter().all(|v| v.is_finite()) {
             return Err(FilterError::NonFiniteState { t, what: "predicted state" });
         }
@@ -211,7 +217,8 @@ impl<const N: usize> Ekf<N> {
     ) -> Result<Innovation<M>, FilterError> {
         let mut s_k = h * self.p * h.transpose() + r_cov;
         symmetrise(&mut s_k);
-        let chol = Cholesky::new(s_k).ok_or(FilterError::NotPositiveDefinite { t, what: "innovation covariance S_k" })?;
+        let chol =
+            Cholesky::new(s_k).ok_or(FilterError::NotPositiveDefinite { t, what: "innovation covariance S_k" })?;
         let nis = r_k.dot(&chol.solve(r_k));
         if !nis.is_finite() || !r_k.iter().all(|v| v.is_finite()) {
             return Err(FilterError::NonFiniteState { t, what: "innovation" });
@@ -235,7 +242,8 @@ impl<const N: usize> Ekf<N> {
     ) -> Result<Innovation<M>, FilterError> {
         let mut s_k = h * self.p * h.transpose() + r_cov;
         symmetrise(&mut s_k);
-        let chol = Cholesky::new(s_k).ok_or(FilterError::NotPositiveDefinite { t, what: "innovation covariance S_k" })?;
+        let chol =
+            Cholesky::new(s_k).ok_or(FilterError::NotPositiveDefinite { t, what: "innovation covariance S_k" })?;
         let ph_t = self.p * h.transpose();
         // eq:ekf_update: K_k = P Hᵀ S_k⁻¹, computed as (S_k⁻¹ H P)ᵀ with P and S_k symmetric.
         let k_gain: SMatrix<f64, N, M> = chol.solve(&ph_t.transpose()).transpose();
@@ -313,15 +321,17 @@ impl<const N: usize> Ekf<N> {
             return Err(FilterError::Dim { what: "columns of H (= state dimension)", expected: N, got: h.ncols() });
         }
         if r_cov.nrows() != m || r_cov.ncols() != m {
-            return Err(FilterError::Dim { what: "size of R (= length of r_k)", expected: m, got: r_cov.nrows().max(r_cov.ncols()) });
+            return Err(FilterError::Dim {
+                what: "size of R (= length of r_k)",
+                expected: m,
+                got: r_cov.nrows().max(r_cov.ncols()),
+            });
         }
         let p = DMatrix::from_column_slice(N, N, self.p.as_slice());
         let mut s_k = h * &p * h.transpose() + r_cov;
         s_k = (&s_k + s_k.transpose()) * 0.5;
-        let chol = s_k
-            .clone()
-            .cholesky()
-            .ok_or(FilterError::NotPositiveDefinite { t, what: "innovation covariance S_k" })?;
+        let chol =
+            s_k.clone().cholesky().ok_or(FilterError::NotPositiveDefinite { t, what: "innovation covariance S_k" })?;
         let ph_t = &p * h.transpose();
         let k_gain = chol.solve(&ph_t.transpose()).transpose();
         let nis = r_k.dot(&chol.solve(r_k));
@@ -345,8 +355,9 @@ mod tests {
 
     #[test]
     fn scalar_update_matches_closed_form() {
-        let mut ekf = Ekf::<1>::new(Vector1::new(0.0), Matrix1::new(4.0), CovarianceUpdate::Joseph, DivergenceGuard::default())
-            .unwrap();
+        let mut ekf =
+            Ekf::<1>::new(Vector1::new(0.0), Matrix1::new(4.0), CovarianceUpdate::Joseph, DivergenceGuard::default())
+                .unwrap();
         let inn = ekf.update(&Vector1::new(2.0), &Matrix1::new(1.0), &Matrix1::new(1.0), 0.0).unwrap();
         // K = 4/5, x = 1.6, P = 4 − 16/5 = 0.8, NIS = 4/5.
         assert!((ekf.x()[0] - 1.6).abs() < 1e-12);
@@ -359,7 +370,8 @@ mod tests {
         let p0 = Matrix2::new(2.0, 0.3, 0.3, 1.0);
         let h = SMatrix::<f64, 1, 2>::new(1.0, 0.5);
         let mut a = Ekf::<2>::new(Vector2::zeros(), p0, CovarianceUpdate::Joseph, DivergenceGuard::default()).unwrap();
-        let mut b = Ekf::<2>::new(Vector2::zeros(), p0, CovarianceUpdate::Standard, DivergenceGuard::default()).unwrap();
+        let mut b =
+            Ekf::<2>::new(Vector2::zeros(), p0, CovarianceUpdate::Standard, DivergenceGuard::default()).unwrap();
         a.update(&Vector1::new(1.0), &h, &Matrix1::new(0.5), 0.0).unwrap();
         b.update(&Vector1::new(1.0), &h, &Matrix1::new(0.5), 0.0).unwrap();
         assert!((a.p() - b.p()).norm() < 1e-12);
@@ -369,7 +381,8 @@ mod tests {
     #[test]
     fn singular_innovation_covariance_is_an_error() {
         let mut ekf =
-            Ekf::<1>::new(Vector1::new(0.0), Matrix1::new(1.0), CovarianceUpdate::Joseph, DivergenceGuard::default()).unwrap();
+            Ekf::<1>::new(Vector1::new(0.0), Matrix1::new(1.0), CovarianceUpdate::Joseph, DivergenceGuard::default())
+                .unwrap();
         let err = ekf.update(&Vector1::new(1.0), &Matrix1::new(0.0), &Matrix1::new(0.0), 3.0).unwrap_err();
         assert!(matches!(err, FilterError::NotPositiveDefinite { t, .. } if t == 3.0));
     }

@@ -6,6 +6,18 @@
 //! [`ResidueSeries`] type (`t`, channels, `r_k`, `S_k`, NIS), and the [`Detector`]/[`Fit`]
 //! traits that every residue consumer implements. It knows nothing about attacks or learning.
 //!
+//! Modules:
+//! - [`ekf`]: generic static-size EKF ([`Ekf`]), eq:ekf_predict / eq:ekf_update with a Joseph
+//!   or standard covariance update ([`CovarianceUpdate`]), Cholesky factorisation of `S_k`,
+//!   divergence checks ([`DivergenceGuard`]); every numerical failure is a [`FilterError`].
+//! - [`model1_filter`]: Model I, 15 states, sparse IMU prediction, pose / GPS / attitude updates.
+//! - [`model2_filter`]: Model II, 21 states, stochastic keyframe cloning, VO, GPS and stacked
+//!   VO + GPS updates.
+//! - [`align`]: alg:alg1 TimeStampAlignment (validation, time ordering, measurement groups).
+//! - [`geodetic`]: alg:alg1 CoordinateTransformation, WGS-84 geodetic → ECEF → local ENU.
+//! - [`residues`]: alg:alg1 as one call, [`generate_residues`], and the step-by-step
+//!   [`Estimator`] (GPS fusion can be skipped and re-admitted) for the online layers.
+//!
 //! ```
 //! use ekf_residue::{ResidueSeries, Confusion};
 //! use nalgebra::DMatrix;
@@ -22,6 +34,22 @@
 //! # Ok(())
 //! # }
 //! ```
+//!
+//! Residues of a simulated flight (Model I, noise model matched to the simulator):
+//!
+//! ```
+//! use ekf_residue::{FilterConfig, ModelKind, generate_residues};
+//! use uav_dynamics::sim::{SimConfig, simulate};
+//! use uav_dynamics::trajectory::{ShapeConfig, square};
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let sim = SimConfig::default();
+//! let flight = simulate(&sim, &square(&ShapeConfig::default())?, 5.0, 7)?;
+//! let out = generate_residues(&flight.streams, &FilterConfig::for_sim(ModelKind::ModelI, &sim))?;
+//! assert_eq!(out.series.channels()[0], "gps_x");
+//! assert_eq!(out.series.len(), out.estimates.len());
+//! # Ok(())
+//! # }
+//! ```
 #![warn(missing_docs)]
 
 pub mod align;
@@ -34,13 +62,15 @@ pub mod model2_filter;
 pub mod residues;
 pub mod series;
 
-pub use detector::{Confusion, Detector, Fit, OnlineDecision, OnlineDetector, WindowedOnline, best_f1_threshold, check_channels};
+pub use detector::{
+    Confusion, Detector, Fit, OnlineDecision, OnlineDetector, WindowedOnline, best_f1_threshold, check_channels,
+};
 pub use ekf::{CovarianceUpdate, DivergenceGuard, DynInnovation, Ekf, Innovation};
 pub use error::{DetectError, FilterError, ResidueError};
 pub use model1_filter::{ImuNoise, Model1Filter};
 pub use model2_filter::Model2Filter;
 pub use residues::{
-    Estimator, FilterConfig, GpsFusion, InitConfig, MeasurementNoise, Measurements, ModelKind, ResidueOutput, StateEstimate,
-    UpdateOutcome, generate_residues,
+    Estimator, FilterConfig, GpsFusion, InitConfig, MeasurementNoise, Measurements, ModelKind, ResidueOutput,
+    StateEstimate, UpdateOutcome, generate_residues,
 };
 pub use series::{LabelledResidues, LabelledSeries, ResidueSeries, ResidueStep};

@@ -198,7 +198,12 @@ impl Model1Filter {
     ///
     /// # Errors
     /// [`FilterError::NotPositiveDefinite`] for a singular `S_k`.
-    pub fn pose_innovation(&self, p_m: &Vector3<f64>, q_m: &Vector3<f64>, r_diag: &[f64; 6]) -> Result<Innovation<6>, FilterError> {
+    pub fn pose_innovation(
+        &self,
+        p_m: &Vector3<f64>,
+        q_m: &Vector3<f64>,
+        r_diag: &[f64; 6],
+    ) -> Result<Innovation<6>, FilterError> {
         let r_k = self.pose_residue(p_m, q_m);
         self.ekf.innovation(&r_k, &model1::C(), &diag(r_diag), self.t)
     }
@@ -214,7 +219,12 @@ impl Model1Filter {
     ///
     /// # Errors
     /// As [`Ekf::update`].
-    pub fn update_pose(&mut self, p_m: &Vector3<f64>, q_m: &Vector3<f64>, r_diag: &[f64; 6]) -> Result<Innovation<6>, FilterError> {
+    pub fn update_pose(
+        &mut self,
+        p_m: &Vector3<f64>,
+        q_m: &Vector3<f64>,
+        r_diag: &[f64; 6],
+    ) -> Result<Innovation<6>, FilterError> {
         let r_k = self.pose_residue(p_m, q_m);
         let inn = self.ekf.update(&r_k, &model1::C(), &diag(r_diag), self.t)?;
         self.ekf.map_state(|x| *x = wrap_state_angles(*x));

@@ -122,8 +122,7 @@ impl Model2Filter {
         let a = model2::A(&x, u).ok_or(FilterError::GimbalLock { t: self.t })?;
         let f_jac = Cov21::identity() + a * dt_s;
         let mut q = Cov21::zeros();
-        q.fixed_view_mut::<15, 15>(0, 0)
-            .copy_from(&crate::model1_filter::process_noise(&b, &self.imu_noise, dt_s));
+        q.fixed_view_mut::<15, 15>(0, 0).copy_from(&crate::model1_filter::process_noise(&b, &self.imu_noise, dt_s));
         let x1_next = model1::euler_step(&x1, u, dt_s).ok_or(FilterError::GimbalLock { t: self.t })?;
         let mut x_prior = x;
         x_prior.fixed_rows_mut::<15>(0).copy_from(&x1_next);
@@ -202,7 +201,12 @@ impl Model2Filter {
     ///
     /// # Errors
     /// As [`Model2Filter::update_vo_gps`] but never updates.
-    pub fn vo_gps_innovation(&mut self, vo: &VoSample, p_m: &Vector3<f64>, r_diag: &[f64; 9]) -> Result<Innovation<9>, FilterError> {
+    pub fn vo_gps_innovation(
+        &mut self,
+        vo: &VoSample,
+        p_m: &Vector3<f64>,
+        r_diag: &[f64; 9],
+    ) -> Result<Innovation<9>, FilterError> {
         self.ensure_keyframe(vo);
         let (r_k, h) = self.stacked(vo, p_m)?;
         self.ekf.innovation(&r_k, &h, &diag(r_diag), self.t)
@@ -213,7 +217,12 @@ impl Model2Filter {
     ///
     /// # Errors
     /// As [`Model2Filter::update_vo`].
-    pub fn update_vo_gps(&mut self, vo: &VoSample, p_m: &Vector3<f64>, r_diag: &[f64; 9]) -> Result<Innovation<9>, FilterError> {
+    pub fn update_vo_gps(
+        &mut self,
+        vo: &VoSample,
+        p_m: &Vector3<f64>,
+        r_diag: &[f64; 9],
+    ) -> Result<Innovation<9>, FilterError> {
         self.ensure_keyframe(vo);
         let (r_k, h) = self.stacked(vo, p_m)?;
         let inn = self.ekf.update(&r_k, &h, &diag(r_diag), self.t)?;
@@ -221,7 +230,11 @@ impl Model2Filter {
         Ok(inn)
     }
 
-    fn stacked(&self, vo: &VoSample, p_m: &Vector3<f64>) -> Result<(SVector<f64, 9>, SMatrix<f64, 9, 21>), FilterError> {
+    fn stacked(
+        &self,
+        vo: &VoSample,
+        p_m: &Vector3<f64>,
+    ) -> Result<(SVector<f64, 9>, SMatrix<f64, 9, 21>), FilterError> {
         let (r_vo, h_vo) = self.vo_residue_and_h(vo)?;
         let r_gps = p_m - model2::g_gps(self.ekf.x());
         let mut r_k = SVector::<f64, 9>::zeros();
@@ -258,8 +271,9 @@ mod tests {
         let l = SMatrix::<f64, 15, 15>::from_fn(|i, j| ((i * 5 + j * 3) % 13) as f64 * 0.1 - 0.5);
         let p0 = l * l.transpose() + SMatrix::<f64, 15, 15>::identity() * 0.5;
         let u = ImuInput { omega_m: Vector3::new(0.3, -0.1, 0.7), a_m: Vector3::new(0.5, -0.4, 9.9) };
-        let mut a = Model2Filter::new(x, p0, 0.0, ImuNoise::default(), CovarianceUpdate::Joseph, DivergenceGuard::default())
-            .unwrap();
+        let mut a =
+            Model2Filter::new(x, p0, 0.0, ImuNoise::default(), CovarianceUpdate::Joseph, DivergenceGuard::default())
+                .unwrap();
         // Separate the clone from the pose first so the cross-covariance is non-trivial.
         for _ in 0..10 {
             a.predict(&u, 0.005).unwrap();

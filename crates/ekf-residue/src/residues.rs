@@ -191,7 +191,10 @@ impl FilterConfig {
         pos("meas.attitude_sigma_rad", &self.meas.attitude_sigma_rad)?;
         pos("meas.vo_pos_sigma_m", &self.meas.vo_pos_sigma_m)?;
         pos("meas.vo_att_sigma_rad", &self.meas.vo_att_sigma_rad)?;
-        pos("init.sigma_*", &[self.init.sigma_v0, self.init.sigma_bg0, self.init.sigma_ba0, self.init.sigma_yaw0_unknown])?;
+        pos(
+            "init.sigma_*",
+            &[self.init.sigma_v0, self.init.sigma_bg0, self.init.sigma_ba0, self.init.sigma_yaw0_unknown],
+        )?;
         let imu = [self.imu.gyro_sigma, self.imu.accel_sigma, self.imu.gyro_bias_rw, self.imu.accel_bias_rw];
         if !imu.iter().all(|x| x.is_finite() && *x >= 0.0) {
             return Err(FilterError::Config { field: "imu", msg: format!("must be finite and ≥ 0, got {imu:?}") });
@@ -265,7 +268,12 @@ pub struct UpdateOutcome {
     pub gps_fused: bool,
 }
 
-fn outcome<const M: usize>(t: f64, channels: &'static [&'static str], inn: &Innovation<M>, gps_fused: bool) -> UpdateOutcome {
+fn outcome<const M: usize>(
+    t: f64,
+    channels: &'static [&'static str],
+    inn: &Innovation<M>,
+    gps_fused: bool,
+) -> UpdateOutcome {
     UpdateOutcome {
         t,
         channels,
@@ -282,8 +290,8 @@ fn sq<const M: usize>(s: &[f64; M]) -> [f64; M] {
 
 #[derive(Debug, Clone, PartialEq)]
 enum Filter {
-    One(Model1Filter),
-    Two(Model2Filter),
+    One(Box<Model1Filter>),
+    Two(Box<Model2Filter>),
 }
 
 /// Step-by-step residue generator (Algorithm 1 driven online).
@@ -333,8 +341,12 @@ impl Estimator {
         }
         let p0_cov = SMatrix::<f64, 15, 15>::from_diagonal(&SVector::<f64, 15>::from_column_slice(&var));
         let filter = match cfg.model {
-            ModelKind::ModelI => Filter::One(Model1Filter::new(x0, p0_cov, t0_s, cfg.imu, cfg.cov_update, cfg.guard)?),
-            ModelKind::ModelII => Filter::Two(Model2Filter::new(x0, p0_cov, t0_s, cfg.imu, cfg.cov_update, cfg.guard)?),
+            ModelKind::ModelI => {
+                Filter::One(Box::new(Model1Filter::new(x0, p0_cov, t0_s, cfg.imu, cfg.cov_update, cfg.guard)?))
+            }
+            ModelKind::ModelII => {
+                Filter::Two(Box::new(Model2Filter::new(x0, p0_cov, t0_s, cfg.imu, cfg.cov_update, cfg.guard)?))
+            }
         };
         Ok(Self { filter, cfg: *cfg, held: held.map(ImuInput::from) })
     }
@@ -364,7 +376,9 @@ impl Estimator {
         if dt == 0.0 {
             return Ok(());
         }
-        let u = self.held.ok_or_else(|| FilterError::NoData { msg: format!("no IMU sample before {stream} at t = {t_s} s") })?;
+        let u = self
+            .held
+            .ok_or_else(|| FilterError::NoData { msg: format!("no IMU sample before {stream} at t = {t_s} s") })?;
         // eq:ekf_predict with the Euler-discretised model over [t_filter, t_s].
         match &mut self.filter {
             Filter::One(f) => f.predict(&u, dt),
@@ -470,7 +484,9 @@ impl Estimator {
     /// [`FilterError::Config`] for a negative or non-finite `var_m2`.
     pub fn inflate_position_covariance(&mut self, var_m2: f64) -> Result<(), FilterError> {
         if !(var_m2.is_finite() && var_m2 >= 0.0) {
-            return Err(FilterError::Config { field: "var_m2", msg: format!("must be finite and ≥ 0, got {var_m2}") });
+            return Err(FilterError::Config {
+                field: "var_m2", msg: format!("must be finite and ≥ 0, got {var_m2}")
+            });
         }
         let t = self.t();
         match &mut self.filter {
@@ -492,10 +508,9 @@ impl Estimator {
     pub fn estimate(&self) -> StateEstimate {
         let (x, p): (SVector<f64, 15>, SMatrix<f64, 15, 15>) = match &self.filter {
             Filter::One(f) => (*f.ekf().x(), *f.ekf().p()),
-            Filter::Two(f) => (
-                f.ekf().x().fixed_rows::<15>(0).into_owned(),
-                f.ekf().p().fixed_view::<15, 15>(0, 0).into_owned(),
-            ),
+            Filter::Two(f) => {
+                (f.ekf().x().fixed_rows::<15>(0).into_owned(), f.ekf().p().fixed_view::<15, 15>(0, 0).into_owned())
+            }
         };
         StateEstimate {
             t: self.t(),
@@ -617,7 +632,10 @@ pub fn generate_residues(streams: &SensorStreams, cfg: &FilterConfig) -> Result<
                     let mut new = Estimator::new(cfg, m.t, &p0, &q0, known, Some(imu))?;
                     if let (ModelKind::ModelII, Some(vo)) = (cfg.model, m.vo) {
                         // The first VO sample defines the first keyframe.
-                        new.measure(&Measurements { t: m.t, gps: None, attitude: None, vo: Some(vo) }, GpsFusion::Fuse)?;
+                        new.measure(
+                            &Measurements { t: m.t, gps: None, attitude: None, vo: Some(vo) },
+                            GpsFusion::Fuse,
+                        )?;
                     }
                     est = Some(new);
                     continue;
@@ -637,7 +655,10 @@ pub fn generate_residues(streams: &SensorStreams, cfg: &FilterConfig) -> Result<
     }
     if est.is_none() {
         return Err(FilterError::NoData {
-            msg: format!("{:?} could not initialise: no measurement group with the required sensors after an IMU sample", cfg.model),
+            msg: format!(
+                "{:?} could not initialise: no measurement group with the required sensors after an IMU sample",
+                cfg.model
+            ),
         });
     }
     let series = ResidueSeries::new(t, channels.iter().map(|c| (*c).to_string()).collect(), r, s)?;

@@ -1,6 +1,8 @@
 //! Bad input gives the documented error, never a panic: NaN in a sensor sample, unordered
 //! time stamps, wrong-length vectors, a measurement in the past, streams that cannot initialise
 //! the model, and a diverging filter.
+// Test helpers outside #[test] functions unwrap too (clippy allows it only inside tests).
+#![allow(clippy::unwrap_used)]
 
 mod common;
 
@@ -49,8 +51,9 @@ fn unordered_timestamps_name_the_stream() {
 
 #[test]
 fn wrong_length_vectors_are_dimension_errors() {
-    let mut ekf = Ekf::<15>::new(SVector::zeros(), SMatrix::identity(), CovarianceUpdate::Joseph, DivergenceGuard::default())
-        .unwrap();
+    let mut ekf =
+        Ekf::<15>::new(SVector::zeros(), SMatrix::identity(), CovarianceUpdate::Joseph, DivergenceGuard::default())
+            .unwrap();
     let err = ekf.update_dyn(&DVector::zeros(3), &DMatrix::zeros(2, 15), &DMatrix::identity(3, 3), 1.0).unwrap_err();
     assert_eq!(err, FilterError::Dim { what: "rows of H (= length of r_k)", expected: 3, got: 2 });
     let err = ekf.update_dyn(&DVector::zeros(3), &DMatrix::zeros(3, 14), &DMatrix::identity(3, 3), 1.0).unwrap_err();
@@ -111,11 +114,23 @@ fn a_persistent_absurd_innovation_is_divergence() {
     // The initial fix is also shifted, so start from the true first fix to make the rest absurd.
     let err = (|| -> Result<(), FilterError> {
         let s = &f.streams;
-        let mut est = Estimator::new(&cfg, s.gps[0].t, &(s.gps[0].p - Vector3::new(1000.0, 0.0, 0.0)), &s.attitude[0].q, true, Some(&s.imu[0]))?;
+        let mut est = Estimator::new(
+            &cfg,
+            s.gps[0].t,
+            &(s.gps[0].p - Vector3::new(1000.0, 0.0, 0.0)),
+            &s.attitude[0].q,
+            true,
+            Some(&s.imu[0]),
+        )?;
         for (k, imu) in s.imu.iter().enumerate().skip(1) {
             est.imu(imu)?;
             if k % 20 == 0 {
-                let m = Measurements { t: imu.t, gps: Some(s.gps[k / 20].p), attitude: Some(s.attitude[k / 20].q), vo: None };
+                let m = Measurements {
+                    t: imu.t,
+                    gps: Some(s.gps[k / 20].p),
+                    attitude: Some(s.attitude[k / 20].q),
+                    vo: None,
+                };
                 est.measure(&m, GpsFusion::Fuse)?;
             }
         }

@@ -1,6 +1,8 @@
 //! `P` stays symmetric positive semi-definite after every update (Joseph form, eq:ekf_update),
 //! for both models, random seeds, noise shapes and GPS fusion patterns; and the sparse
 //! Model I prediction equals the dense `F P Fᵀ + Q` for random states and covariances.
+// Test helpers outside #[test] functions unwrap too (clippy allows it only inside tests).
+#![allow(clippy::unwrap_used)]
 
 mod common;
 

@@ -1,6 +1,8 @@
 //! NIS consistency of both models on clean Gaussian flights (Bar-Shalom, Li & Kirubarajan 2001,
 //! §5.4: the mean NIS over n steps times n is χ² with m·n degrees of freedom), and a hand-made
 //! 10 m GPS bias that clearly leaves the interval.
+// Test helpers outside #[test] functions unwrap too (clippy allows it only inside tests).
+#![allow(clippy::unwrap_used)]
 
 mod common;
 
@@ -13,14 +15,8 @@ use uav_dynamics::noise::NoiseShape;
 const WARMUP_S: f64 = 5.0;
 
 fn mean_nis_after(out: &ekf_residue::ResidueOutput, t0: f64, t1: f64) -> (f64, usize) {
-    let sel: Vec<f64> = out
-        .series
-        .t()
-        .iter()
-        .zip(out.series.nis())
-        .filter(|(t, _)| **t >= t0 && **t < t1)
-        .map(|(_, z)| *z)
-        .collect();
+    let sel: Vec<f64> =
+        out.series.t().iter().zip(out.series.nis()).filter(|(t, _)| **t >= t0 && **t < t1).map(|(_, z)| *z).collect();
     (sel.iter().sum::<f64>() / sel.len() as f64, sel.len())
 }
 
@@ -32,7 +28,10 @@ fn check_model(model: ModelKind, seed: u64) {
     let (mean, n) = mean_nis_after(&out, WARMUP_S, f64::INFINITY);
     let (lo, hi) = common::mean_nis_interval(m, n);
     eprintln!("{model:?}: mean NIS {mean:.3} over {n} steps, dim {m}, 99% interval [{lo:.3}, {hi:.3}]");
-    assert!(mean > lo && mean < hi, "{model:?}: mean NIS {mean:.3} over {n} steps of dim {m} outside [{lo:.3}, {hi:.3}]");
+    assert!(
+        mean > lo && mean < hi,
+        "{model:?}: mean NIS {mean:.3} over {n} steps of dim {m} outside [{lo:.3}, {hi:.3}]"
+    );
 
     // A 10 m east bias on every GPS fix from t = 30 s on.
     let mut attacked = flight.streams.clone();

@@ -2,6 +2,8 @@
 //! models and all three noise shapes, unattacked flights keep every residue below the bound
 //! `N = κ·√(max_k tr S_k)` with `κ = 15` derived in docs/theory/residue-bound.md, and the filter
 //! never diverges (`generate_residues` returns `Ok`, `trace(P)` stays small).
+// Test helpers outside #[test] functions unwrap too (clippy allows it only inside tests).
+#![allow(clippy::unwrap_used)]
 
 mod common;
 

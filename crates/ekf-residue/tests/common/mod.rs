@@ -1,5 +1,5 @@
 //! Shared helpers for the `ekf-residue` integration tests: simulated flights and χ² quantiles.
-#![allow(dead_code)]
+#![allow(dead_code, clippy::unwrap_used)]
 
 use uav_dynamics::noise::{NoiseConfig, NoiseShape};
 use uav_dynamics::sensors::Flight;
