@@ -314,24 +314,24 @@ fn train_help() {
     check_help(
         &["train", "-h"],
         expect_test::expect![[r#"
-        Fit a detection method on residue CSV files (thresholds chosen on the validation files) and save a model directory
+            Fit a detection method on residue CSV files (thresholds chosen on the validation files) and save a model directory
 
-        Usage: quadformer train [OPTIONS] --method <METHOD> --train <DIR> --valid <DIR> --out <MODEL_DIR>
+            Usage: quadformer train [OPTIONS] --method <METHOD> --train <DIR> --valid <DIR> --out <MODEL_DIR>
 
-        Options:
-              --method <METHOD>     Method: quadformer, cusum, sprt, bht, chi2, px4-gate, svm, cnn or lstm
-              --train <DIR>         Directory of training residue CSVs (every `*.csv`; labels optional)
-              --valid <DIR>         Directory of validation residue CSVs (every `*.csv`; labels required): thresholds are chosen here
-              --out <MODEL_DIR>     Output model directory (must not exist or be empty, unless `--force`)
-              --config <FILE.toml>  Method configurations (TOML with sections [quadformer], [cusum], [sprt], [bht], [svm], [cnn], [lstm], [chi2], [px4_gate]; keys left out keep the base values, the defaults or, with `--quick`, the quick ones)
-              --quick               Small networks and few epochs (as `reproduce-tables --quick`): a smoke test
-              --seed <SEED>         Seed of the method's random parts [default: 0]
-              --force               Replace a non-empty output directory
-          -h, --help                Print help
-          -V, --version             Print version
+            Options:
+                  --method <METHOD>     Method: quadformer, cusum, sprt, bht, chi2, px4-gate, svm, cnn or lstm
+                  --train <DIR>         Directory of training residue CSVs (every `*.csv`; labels optional)
+                  --valid <DIR>         Directory of validation residue CSVs (every `*.csv`; labels required): thresholds are chosen here
+                  --out <MODEL_DIR>     Output model directory (must not exist or be empty, unless `--force`)
+                  --config <FILE.toml>  Method configurations (TOML, one table per method: `quadformer`, `cusum`, `sprt`, `bht`, `svm`, `cnn`, `lstm`, `chi2`, `px4_gate`; keys left out keep the base values, the defaults or, with `--quick`, the quick ones)
+                  --quick               Small networks and few epochs (as `reproduce-tables --quick`): a smoke test
+                  --seed <SEED>         Seed of the method's random parts [default: 0]
+                  --force               Replace a non-empty output directory
+              -h, --help                Print help
+              -V, --version             Print version
 
-        Model directory: QUADFormer is saved as a checkpoint (quadformer.json + quadformer.safetensors). The other methods (cusum, sprt, bht, chi2, px4-gate, svm, cnn, lstm) have no save format: the model directory keeps their configuration and a copy of the training and validation residues, and `quadformer detect` re-fits them from it (deterministic for a given seed). See docs/cli.md and decision 081.
-    "#]],
+            Model directory: QUADFormer is saved as a checkpoint (quadformer.json + quadformer.safetensors). The other methods (cusum, sprt, bht, chi2, px4-gate, svm, cnn, lstm) have no save format: the model directory keeps their configuration and a copy of the training and validation residues, and `quadformer detect` re-fits them from it (deterministic for a given seed). See docs/cli.md and decision 081.
+        "#]],
     );
 }
 

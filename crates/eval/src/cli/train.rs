@@ -103,9 +103,9 @@ pub struct Args {
     /// Output model directory (must not exist or be empty, unless `--force`).
     #[arg(long, value_name = "MODEL_DIR")]
     pub out: PathBuf,
-    /// Method configurations (TOML with sections [quadformer], [cusum], [sprt], [bht], [svm],
-    /// [cnn], [lstm], [chi2], [px4_gate]; keys left out keep the base values, the defaults or,
-    /// with `--quick`, the quick ones).
+    /// Method configurations (TOML, one table per method: `quadformer`, `cusum`, `sprt`, `bht`,
+    /// `svm`, `cnn`, `lstm`, `chi2`, `px4_gate`; keys left out keep the base values, the
+    /// defaults or, with `--quick`, the quick ones).
     #[arg(long, value_name = "FILE.toml")]
     pub config: Option<PathBuf>,
     /// Small networks and few epochs (as `reproduce-tables --quick`): a smoke test.
