@@ -1,0 +1,90 @@
+//! Tests of the resilient estimator's state machine (`estimator::ResilientEstimator`) with a
+//! scripted detector on an open-loop simulated flight: exclusion starts after the decision
+//! latency, GPS is re-admitted after the hold time, and configs are `Send + Sync`.
+
+use ekf_residue::detector::{OnlineDecision, OnlineDetector};
+use ekf_residue::error::DetectError;
+use ekf_residue::residues::{FilterConfig, Measurements, ModelKind};
+use ekf_residue::series::ResidueStep;
+use resilient_fusion::estimator::{ResilientConfig, ResilientEstimator, Rollback};
+use resilient_fusion::scenario::ScenarioConfig;
+use resilient_fusion::{FusionError, Result};
+use uav_dynamics::sim::{SimConfig, simulate};
+use uav_dynamics::trajectory::{ShapeConfig, square};
+
+/// Alarms on every residue step with `t0 < t ≤ t1`.
+struct Scripted {
+    t0: f64,
+    t1: f64,
+}
+
+impl OnlineDetector for Scripted {
+    fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
+        let alarm = step.t > self.t0 && step.t <= self.t1;
+        Ok(OnlineDecision { score: f64::from(u8::from(alarm)), alarm })
+    }
+
+    fn reset(&mut self) {}
+}
+
+/// Run the estimator over a 30 s square flight with the scripted detector; returns the
+/// exclusion intervals and the number of rollbacks.
+fn excluded(cfg: &ResilientConfig, t0: f64, t1: f64) -> Result<(Vec<(f64, f64)>, usize)> {
+    let sim = SimConfig::default();
+    let flight = simulate(&sim, &square(&ShapeConfig::default())?, 30.0, 4)?;
+    let fc = FilterConfig::for_sim(ModelKind::ModelII, &sim);
+    let mut est = ResilientEstimator::new(&fc, cfg, Some(Box::new(Scripted { t0, t1 })))?;
+    let s = &flight.streams;
+    let (mut g, mut a, mut v) = (0, 0, 0);
+    for imu in &s.imu {
+        let t = imu.t;
+        let take_gps = s.gps.get(g).filter(|x| x.t == t).map(|x| x.p);
+        g += usize::from(take_gps.is_some());
+        let take_att = s.attitude.get(a).filter(|x| x.t == t).map(|x| x.q);
+        a += usize::from(take_att.is_some());
+        let take_vo = s.vo.get(v).filter(|x| x.t == t).copied();
+        v += usize::from(take_vo.is_some());
+        est.process(imu, &Measurements { t, gps: take_gps, attitude: take_att, vo: take_vo })?;
+    }
+    let err = est.estimate().map_or(f64::INFINITY, |e| (e.p - flight.truth[flight.truth.len() - 1].p).norm());
+    if err > 2.0 {
+        return Err(FusionError::Config { field: "estimate", msg: format!("final error {err} m") });
+    }
+    Ok((est.excluded_intervals(30.0), est.n_rollbacks()))
+}
+
+#[test]
+fn exclusion_follows_latency_and_hold() -> Result<()> {
+    let cfg = ResilientConfig { latency_s: 0.5, hold_s: 2.0, ..ResilientConfig::default() };
+    let (iv, n_rollbacks) = excluded(&cfg, 10.0, 15.0)?;
+    // First alarm on the residue at 10.1 s, usable at 10.6 s; last alarm at 15.0 s, usable at
+    // 15.5 s; re-admitted 2 s later.
+    assert_eq!(iv.len(), 1, "{iv:?}");
+    assert!((iv[0].0 - 10.6).abs() < 1e-6 && (iv[0].1 - 17.5).abs() < 1e-6, "{iv:?}");
+    assert_eq!(n_rollbacks, 1);
+    let off = ResilientConfig { rollback: Rollback::Off, ..cfg };
+    let (iv_off, n_off) = excluded(&off, 10.0, 15.0)?;
+    assert_eq!(iv_off, iv);
+    assert_eq!(n_off, 0);
+    Ok(())
+}
+
+#[test]
+fn zero_latency_gates_the_alarmed_fix_itself() -> Result<()> {
+    let cfg = ResilientConfig { latency_s: 0.0, hold_s: 1.0, ..ResilientConfig::default() };
+    let (iv, n_rollbacks) = excluded(&cfg, 20.0, 22.0)?;
+    assert_eq!(iv.len(), 1, "{iv:?}");
+    assert!((iv[0].0 - 20.1).abs() < 1e-6 && (iv[0].1 - 23.0).abs() < 1e-6, "{iv:?}");
+    assert_eq!(n_rollbacks, 0);
+    Ok(())
+}
+
+#[test]
+fn configs_and_estimator_are_thread_safe() {
+    fn send_sync<T: Send + Sync>() {}
+    fn send<T: Send>() {}
+    send_sync::<ResilientConfig>();
+    send_sync::<ScenarioConfig>();
+    send_sync::<FusionError>();
+    send::<ResilientEstimator<'static>>();
+}
