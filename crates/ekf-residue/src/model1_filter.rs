@@ -97,14 +97,58 @@ pub fn process_noise(b: &JacobianBlocks, noise: &ImuNoise, dt_s: f64) -> Cov15 {
 
 /// Sparse covariance prediction `F P Fᵀ + Q` (eq:ekf_predict) for Model I.
 ///
-/// Computes `T = F P` by block-row operations, then `F Tᵀ = F P Fᵀ`, then adds the
-/// block-diagonal `Q`. Equal to the dense product up to rounding (see tests).
+/// Only the `p`, `q` and `v` block-rows of `F = I + A·dt` differ from the identity, so
+/// `T = F·P` is computed for those 9 rows only; the `{p,q,v} × {b_g,b_a}` blocks of the result
+/// are blocks of `T` (and their transposes), and the `{p,q,v} × {p,q,v}` block is `T·Fᵀ`
+/// restricted to those columns, computed for the upper block triangle and mirrored. The bias
+/// blocks are unchanged. Then the block-diagonal `Q` is added. Equal to the dense product up
+/// to rounding (see tests).
 #[must_use]
 pub fn predict_covariance_sparse(p: &Cov15, b: &JacobianBlocks, noise: &ImuNoise, dt_s: f64) -> Cov15 {
-    let t = apply_f(p, b, dt_s);
-    let mut out = apply_f(&t.transpose(), b, dt_s);
+    let f_qq = Matrix3::identity() + b.a_qq * dt_s;
+    let f_qg = b.g_inv * (-dt_s);
+    let f_vq = b.a_vq * dt_s;
+    let f_va = b.r * (-dt_s);
+    let rows = |i: usize| p.fixed_rows::<3>(i);
+    // T = F·P, block-rows p, q, v (3×15 each).
+    let t_p: SMatrix<f64, 3, 15> = rows(IDX_P) + rows(IDX_V) * dt_s;
+    let t_q: SMatrix<f64, 3, 15> = f_qq * rows(IDX_Q) + f_qg * rows(IDX_BG);
+    let t_v: SMatrix<f64, 3, 15> = f_vq * rows(IDX_Q) + rows(IDX_V) + f_va * rows(IDX_BA);
+    let f_qq_t = f_qq.transpose();
+    let f_qg_t = f_qg.transpose();
+    let f_vq_t = f_vq.transpose();
+    let f_va_t = f_va.transpose();
+    let mut out = *p;
+    let t_blocks = [(IDX_P, &t_p), (IDX_Q, &t_q), (IDX_V, &t_v)];
+    for (bi, (ri, t)) in t_blocks.iter().enumerate() {
+        // {p,q,v} × {b_g, b_a}: (F P Fᵀ)_{i,bias} = T_{i,bias} since the bias rows of F are identity.
+        for cj in [IDX_BG, IDX_BA] {
+            let blk = t.fixed_columns::<3>(cj).into_owned();
+            out.fixed_view_mut::<3, 3>(*ri, cj).copy_from(&blk);
+            out.fixed_view_mut::<3, 3>(cj, *ri).copy_from(&blk.transpose());
+        }
+        let col = |j: usize| t.fixed_columns::<3>(j);
+        // (T·Fᵀ) column blocks p, q, v, upper triangle only.
+        let c_p = || col(IDX_P) + col(IDX_V) * dt_s;
+        let c_q = || col(IDX_Q) * f_qq_t + col(IDX_BG) * f_qg_t;
+        let c_v = || col(IDX_Q) * f_vq_t + col(IDX_V) + col(IDX_BA) * f_va_t;
+        for (bj, cj) in [IDX_P, IDX_Q, IDX_V].into_iter().enumerate() {
+            if bj < bi {
+                continue;
+            }
+            let blk: Matrix3<f64> = match bj {
+                0 => c_p(),
+                1 => c_q(),
+                _ => c_v(),
+            };
+            out.fixed_view_mut::<3, 3>(*ri, cj).copy_from(&blk);
+            if bj != bi {
+                out.fixed_view_mut::<3, 3>(cj, *ri).copy_from(&blk.transpose());
+            }
+        }
+    }
     let dt2 = dt_s * dt_s;
-    // Q_qq and Q_vv: G⁻¹ Σ G⁻ᵀ dt² and R Σ Rᵀ dt² (R orthonormal: σ_a² dt² I).
+    // Q_qq = G⁻¹ Σ G⁻ᵀ dt², Q_vv = R Σ Rᵀ dt² = σ_a² dt² I (R orthonormal, isotropic σ_a).
     let q_qq = b.g_inv * b.g_inv.transpose() * (noise.gyro_sigma * noise.gyro_sigma * dt2);
     let mut blk = out.fixed_view_mut::<3, 3>(IDX_Q, IDX_Q);
     blk += q_qq;
@@ -116,7 +160,30 @@ pub fn predict_covariance_sparse(p: &Cov15, b: &JacobianBlocks, noise: &ImuNoise
         out[(IDX_BG + i, IDX_BG + i)] += q_g;
         out[(IDX_BA + i, IDX_BA + i)] += q_a;
     }
+    // The diagonal blocks are symmetric up to rounding; make them exactly symmetric.
+    for i in 0..9 {
+        for j in (i + 1)..9 {
+            let m = 0.5 * (out[(i, j)] + out[(j, i)]);
+            out[(i, j)] = m;
+            out[(j, i)] = m;
+        }
+    }
     out
+}
+
+/// One Euler step of eq:model1f from precomputed blocks (`G⁻¹`, `R`), avoiding a second
+/// evaluation of the trigonometry.
+fn euler_step_with(x: &model1::State, u: &ImuInput, b: &JacobianBlocks, dt_s: f64) -> model1::State {
+    let mut y = *x;
+    let v = model1::block(x, IDX_V);
+    let q_dot = b.g_inv * (u.omega_m - model1::block(x, IDX_BG));
+    let v_dot = model1::GRAVITY + b.r * (u.a_m - model1::block(x, IDX_BA));
+    for i in 0..3 {
+        y[IDX_P + i] += v[i] * dt_s;
+        y[IDX_Q + i] += q_dot[i] * dt_s;
+        y[IDX_V + i] += v_dot[i] * dt_s;
+    }
+    y
 }
 
 /// The Model I filter (eq:model1f, eq:model1g) on top of [`Ekf`].
@@ -169,7 +236,7 @@ impl Model1Filter {
         let t_next = self.t + dt_s;
         let x = *self.ekf.x();
         let b = model1::jacobian_blocks(&x, u).ok_or(FilterError::GimbalLock { t: self.t })?;
-        let x_prior = model1::euler_step(&x, u, dt_s).ok_or(FilterError::GimbalLock { t: self.t })?;
+        let x_prior = euler_step_with(&x, u, &b, dt_s);
         let p_prior = predict_covariance_sparse(self.ekf.p(), &b, &self.imu_noise, dt_s);
         self.ekf.set_prior(wrap_state_angles(x_prior), p_prior, t_next)?;
         self.t = t_next;
