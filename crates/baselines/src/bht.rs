@@ -78,10 +78,22 @@ impl Bht {
     fn d2(&self, r_k: &[f64]) -> f64 {
         let m = self.mu.len();
         let mut acc = 0.0;
-        // Row i of L⁻¹ has non-zeros in columns 0..=i only.
-        for (i, row) in self.whiten.chunks_exact(m).enumerate() {
-            let y: f64 = row[..=i].iter().zip(r_k).zip(&self.mu).map(|((w, r), mu)| w * (r - mu)).sum();
-            acc += y * y;
+        // Centre once on the stack (up to 32 channels), then y = L⁻¹ c; row i of L⁻¹ has
+        // non-zeros in columns 0..=i only.
+        let mut buf = [0.0f64; 32];
+        if m <= buf.len() {
+            for ((c, r), mu) in buf.iter_mut().zip(r_k).zip(&self.mu) {
+                *c = r - mu;
+            }
+            for (i, row) in self.whiten.chunks_exact(m).enumerate() {
+                let y: f64 = row[..=i].iter().zip(&buf[..=i]).map(|(w, c)| w * c).sum();
+                acc += y * y;
+            }
+        } else {
+            for (i, row) in self.whiten.chunks_exact(m).enumerate() {
+                let y: f64 = row[..=i].iter().zip(r_k).zip(&self.mu).map(|((w, r), mu)| w * (r - mu)).sum();
+                acc += y * y;
+            }
         }
         acc
     }
