@@ -12,7 +12,9 @@ use candle_nn::{AdamW, Optimizer, ParamsAdamW};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ekf_residue::{Fit, LabelledResidues, LabelledSeries, ResidueSeries};
 use quadformer_model::model::MinMaxTrainer;
-use quadformer_model::{Batch, LossConfig, NetConfig, QuadFormerConfig, QuadFormerNet, TrainableModel, tune_allocator};
+use quadformer_model::{
+    Batch, LossConfig, NetConfig, QuadFormerConfig, QuadFormerNet, ScoreMode, TrainableModel, tune_allocator,
+};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 
@@ -35,24 +37,30 @@ fn flight(n: usize, seed: u64) -> LabelledSeries {
 fn streaming(c: &mut Criterion) {
     tune_allocator();
     let split = LabelledResidues::new(vec![flight(600, 1)]).unwrap();
-    let mut cfg = QuadFormerConfig::default();
-    cfg.train.epochs = 1;
-    cfg.train.max_windows_per_epoch = Some(32);
-    cfg.train.progress = false;
-    let det = cfg.fit(&split, &split).unwrap();
     let f = flight(400, 2);
     let steps: Vec<_> = f.series().steps().collect();
-    let mut online = det.online_quadformer();
-    for s in &steps[..L] {
-        ekf_residue::OnlineDetector::update(&mut online, s).unwrap();
+    for mode in [ScoreMode::Combined, ScoreMode::Classifier] {
+        let mut cfg = QuadFormerConfig::default();
+        cfg.train.epochs = 1;
+        cfg.train.max_windows_per_epoch = Some(32);
+        cfg.train.progress = false;
+        cfg.score.mode = Some(mode);
+        let det = cfg.fit(&split, &split).unwrap();
+        let mut online = det.online_quadformer();
+        for s in &steps[..L] {
+            ekf_residue::OnlineDetector::update(&mut online, s).unwrap();
+        }
+        let mut k = L;
+        c.bench_function(
+            &format!("streaming decision, {} mode (l=100, d_model=64, 3 layers, m=6)", mode.name()),
+            |b| {
+                b.iter(|| {
+                    k = if k + 1 >= steps.len() { L } else { k + 1 };
+                    ekf_residue::OnlineDetector::update(&mut online, &steps[k]).unwrap()
+                })
+            },
+        );
     }
-    let mut k = L;
-    c.bench_function("streaming decision (l=100, d_model=64, 3 layers, m=6)", |b| {
-        b.iter(|| {
-            k = if k + 1 >= steps.len() { L } else { k + 1 };
-            ekf_residue::OnlineDetector::update(&mut online, &steps[k]).unwrap()
-        })
-    });
 }
 
 fn training(c: &mut Criterion) {

@@ -459,7 +459,8 @@ impl<'a> OnlineQuadFormer<'a> {
         }
         let x = Tensor::from_slice(&self.x, (1, l, m), &Device::Cpu)?;
         let mode = self.det.chosen.mode;
-        let [alg2, at, class] = window_scores(&self.det.net, &x, self.det.config.score.temperature, Need::for_mode(mode))?;
+        let [alg2, at, class] =
+            window_scores(&self.det.net, &x, self.det.config.score.temperature, Need::for_mode(mode))?;
         let last = l - 1;
         let pick = |v: &[f32]| v.get(last).map_or(f64::NAN, |s| f64::from(*s));
         Ok(match mode {

@@ -225,8 +225,13 @@ impl Norm {
         })
     }
 
-    fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        layer_norm(x, &self.gain, &self.bias)
+    /// `fused` selects candle's fused kernel, which has no backward: inference only.
+    fn forward(&self, x: &Tensor, fused: bool) -> candle_core::Result<Tensor> {
+        if fused {
+            candle_nn::ops::layer_norm(&x.contiguous()?, &self.gain, &self.bias, LN_EPS as f32)
+        } else {
+            layer_norm(x, &self.gain, &self.bias)
+        }
     }
 }
 
@@ -262,7 +267,8 @@ pub struct QuadFormerNet {
     dist_p: Tensor,
     /// `|j − i|²`, `1 × 1 × l × l`, built once (Gaussian prior).
     dist_sq: Tensor,
-    /// Frozen TPC priors per layer for inference (`None` while training).
+    /// Frozen TPC priors per layer for inference (`None` while training; empty for the
+    /// Gaussian prior).
     prior_cache: Option<Vec<Tensor>>,
 }
 
@@ -368,22 +374,22 @@ impl QuadFormerNet {
         self.varmap.all_vars().iter().map(|v| v.elem_count()).sum()
     }
 
-    /// Precomputes the TPC priors for inference (they depend only on `γ`); call after the
-    /// last change of the variables. [`QuadFormerNet::thaw`] drops the cache.
+    /// Switches to inference: precomputes the TPC priors (they depend only on `γ`) and lets the
+    /// forward pass use candle's fused layer-norm and softmax kernels (faster, no backward).
+    /// Call after the last change of the variables; [`QuadFormerNet::thaw`] switches back.
     ///
     /// # Errors
     /// candle errors.
     pub fn freeze(&mut self) -> Result<()> {
         self.prior_cache = None;
-        if self.cfg.prior == Prior::Tpc {
-            let mut cache = Vec::with_capacity(self.layers.len());
-            for layer in &self.layers {
-                if let Some(lg) = &layer.log_gamma {
-                    cache.push(self.tpc(lg)?.detach());
-                }
+        let mut cache = Vec::with_capacity(self.layers.len());
+        for layer in &self.layers {
+            if let Some(lg) = &layer.log_gamma {
+                cache.push(self.tpc(lg)?.detach());
             }
-            self.prior_cache = Some(cache);
         }
+        // Empty for the Gaussian prior, which depends on the input.
+        self.prior_cache = Some(cache);
         Ok(())
     }
 
@@ -435,6 +441,8 @@ impl QuadFormerNet {
             .reshape((b * l, d))?;
         let split =
             |t: Tensor| -> candle_core::Result<Tensor> { t.reshape((b, l, heads, dh))?.transpose(1, 2)?.contiguous() };
+        // A frozen network (inference) may use candle's fused kernels, which pass no gradient.
+        let fused = self.prior_cache.is_some();
         let mut k_prev: Option<Tensor> = None;
         let mut prior = Vec::with_capacity(self.layers.len());
         let mut attn = Vec::with_capacity(self.layers.len());
@@ -448,7 +456,12 @@ impl QuadFormerNet {
                 _ => &k,
             };
             let scores = (q.matmul(&keys.t()?)? * scale)?;
-            let c = candle_nn::ops::softmax(&scores, D::Minus1)?;
+            // The fused softmax has no backward (rust-stack.md §4.2): frozen inference only.
+            let c = if fused {
+                candle_nn::ops::softmax_last_dim(&scores)?
+            } else {
+                candle_nn::ops::softmax(&scores, D::Minus1)?
+            };
             let t = match (&layer.log_gamma, &layer.sigma, &self.prior_cache) {
                 (Some(_), _, Some(cache)) if idx < cache.len() => cache[idx].clone(),
                 (Some(lg), _, _) => self.tpc(lg)?,
@@ -456,9 +469,9 @@ impl QuadFormerNet {
                 (None, None, _) => candle_core::bail!("layer {idx} has no prior"),
             };
             let out = c.matmul(&v)?.transpose(1, 2)?.reshape((b * l, d))?;
-            let z = layer.norm1.forward(&(layer.w_o.forward(&out)? + &h)?)?;
+            let z = layer.norm1.forward(&(layer.w_o.forward(&out)? + &h)?, fused)?;
             let f = layer.ff2.forward(&layer.ff1.forward(&z)?.gelu_erf()?)?;
-            h = layer.norm2.forward(&(f + &z)?)?;
+            h = layer.norm2.forward(&(f + &z)?, fused)?;
             prior.push(t);
             attn.push(c);
             k_prev = Some(k);

@@ -118,13 +118,14 @@ fn same_seed_same_network() {
 }
 
 #[test]
-fn frozen_prior_gives_identical_outputs() {
+fn frozen_network_matches_training_forward() {
     let mut net = QuadFormerNet::new(&tiny(Prior::Tpc, true), 10, 3, 11).unwrap();
     let x = batch(2, 10, 3, 1).x;
     let a = net.forward(&x).unwrap().logits.flatten_all().unwrap().to_vec1::<f32>().unwrap();
     net.freeze().unwrap();
     let b = net.forward(&x).unwrap().logits.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-    assert_eq!(a, b);
+    // Fused inference kernels round differently from the differentiable ones.
+    assert!(a.iter().zip(&b).all(|(u, v)| (u - v).abs() < 1e-4), "{a:?} vs {b:?}");
 }
 
 #[test]
