@@ -24,12 +24,12 @@
 //! ∂h/∂ψ = 0
 //! ```
 //!
-//! and `∂(R(q) a)/∂q_j = (∂R/∂q_j) a` from [`rotation_matrix_partials`].
+//! and `∂(R(q) a)/∂q_j = (∂R/∂q_j) a` from [`crate::rotation::rotation_matrix_partials`].
 //! All functions return `None` at gimbal lock (`|cos θ|` below [`GIMBAL_LOCK_COS`]).
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
-use crate::rotation::{GIMBAL_LOCK_COS, body_to_euler_rate, rotation_matrix, rotation_matrix_partials};
+use crate::rotation::{GIMBAL_LOCK_COS, body_to_euler_rate, rotation_matrix};
 use crate::sensors::ImuSample;
 
 /// Number of Model I states.
@@ -163,15 +163,17 @@ pub struct JacobianBlocks {
 }
 
 /// The non-trivial Jacobian blocks at `(x, u)`; `None` at gimbal lock.
+///
+/// All blocks come from one evaluation of the six sines and cosines (this is on the hot path
+/// of the filter's prediction).
 #[must_use]
 pub fn jacobian_blocks(x: &State, u: &ImuInput) -> Option<JacobianBlocks> {
-    let q = block(x, IDX_Q);
-    let (sf, cf) = q[0].sin_cos();
-    let (st, ct) = q[1].sin_cos();
-    if ct.abs() < GIMBAL_LOCK_COS {
+    let (sf, cf) = x[IDX_Q].sin_cos();
+    let (st, ct) = x[IDX_Q + 1].sin_cos();
+    let (sp, cp) = x[IDX_Q + 2].sin_cos();
+    if ct.abs() < GIMBAL_LOCK_COS || !ct.is_finite() {
         return None;
     }
-    let g_inv = body_to_euler_rate(&q)?;
     let w = u.omega_m - block(x, IDX_BG);
     let a = u.a_m - block(x, IDX_BA);
     let (tt, ct2) = (st / ct, ct * ct);
@@ -183,9 +185,38 @@ pub fn jacobian_blocks(x: &State, u: &ImuInput) -> Option<JacobianBlocks> {
         -s,     0.0,          0.0,
         d / ct, s * st / ct2, 0.0,
     );
-    let [d_phi, d_theta, d_psi] = rotation_matrix_partials(&q);
-    let a_vq = Matrix3::from_columns(&[d_phi * a, d_theta * a, d_psi * a]);
-    Some(JacobianBlocks { a_qq, g_inv, a_vq, r: rotation_matrix(&q) })
+    // G(q)⁻¹ (crate::rotation::body_to_euler_rate).
+    #[rustfmt::skip]
+    let g_inv = Matrix3::new(
+        1.0, sf * tt, cf * tt,
+        0.0, cf,      -sf,
+        0.0, sf / ct, cf / ct,
+    );
+    // R(q) = Rz(ψ)Ry(θ)Rx(φ) (crate::rotation::rotation_matrix).
+    #[rustfmt::skip]
+    let r = Matrix3::new(
+        cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf,
+        sp * ct, sp * st * sf + cp * cf, sp * st * cf - cp * sf,
+        -st,     ct * sf,                ct * cf,
+    );
+    // ∂(R a)/∂φ, ∂(R a)/∂θ, ∂(R a)/∂ψ (crate::rotation::rotation_matrix_partials applied to a).
+    let d_phi = Vector3::new(
+        (cp * st * cf + sp * sf) * a[1] + (-cp * st * sf + sp * cf) * a[2],
+        (sp * st * cf - cp * sf) * a[1] + (-sp * st * sf - cp * cf) * a[2],
+        ct * cf * a[1] - ct * sf * a[2],
+    );
+    let d_theta = Vector3::new(
+        -cp * st * a[0] + cp * ct * sf * a[1] + cp * ct * cf * a[2],
+        -sp * st * a[0] + sp * ct * sf * a[1] + sp * ct * cf * a[2],
+        -ct * a[0] - st * sf * a[1] - st * cf * a[2],
+    );
+    let d_psi = Vector3::new(
+        -(r[(1, 0)] * a[0] + r[(1, 1)] * a[1] + r[(1, 2)] * a[2]),
+        r[(0, 0)] * a[0] + r[(0, 1)] * a[1] + r[(0, 2)] * a[2],
+        0.0,
+    );
+    let a_vq = Matrix3::from_columns(&[d_phi, d_theta, d_psi]);
+    Some(JacobianBlocks { a_qq, g_inv, a_vq, r })
 }
 
 /// Dense state Jacobian `A = ∂f/∂x` (15×15) of eq:model1f; `None` at gimbal lock.
