@@ -17,7 +17,7 @@
 //! command `t_cmd = a_cmd − g` with a first-order lag `ṫ = (t_cmd − t)/τ`, modelling the
 //! attitude and thrust loops; `τ = 1/MC_ROLL_P`. Attitude, body rates and accelerometer
 //! reading follow from `(a, ṫ, ψ_ref, ψ̇_ref)` by differential flatness
-//! ([`flat_attitude`](crate::sim::flat_attitude)), so IMU samples are consistent with the true
+//! ([`flat_attitude`]), so IMU samples are consistent with the true
 //! motion. Yaw follows the reference. Integration: `p ← p + v dt + ½a dt²`, `v ← v + a dt`,
 //! `t ← t + ṫ dt` at the IMU rate. World ENU, SI units throughout.
 
