@@ -16,9 +16,9 @@ use attack_inject::{AmplitudeConfig, AttackKind};
 use ekf_residue::residues::{MODEL2_VO_CHANNELS, ModelKind};
 use ekf_residue::{Detector, LabelledResidues};
 use indicatif::{ProgressBar, ProgressStyle};
+use quadformer_model::Prior;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use quadformer_model::Prior;
 use uav_dynamics::noise::NoiseShape;
 
 use crate::dataset::{Dataset, DatasetConfig, SplitSteps, load_or_build};
@@ -202,7 +202,8 @@ pub fn dataset_config(cell: Cell, seed: u64, cfg: &MatrixConfig, quick: bool) ->
         AttackModel::I => AttackKind::Sparse,
         AttackModel::II => AttackKind::Persistent,
     };
-    let base = if quick { DatasetConfig::quick(model, noise, attack) } else { DatasetConfig::paper(model, noise, attack) };
+    let base =
+        if quick { DatasetConfig::quick(model, noise, attack) } else { DatasetConfig::paper(model, noise, attack) };
     DatasetConfig { steps: cfg.steps, labelled_fraction: cfg.labelled_fraction, seed, ..base }
 }
 
@@ -319,7 +320,9 @@ pub fn write_roc_plots(out: &Path, records: &[RunRecord]) -> Result<Vec<PathBuf>
         let curves: Vec<(String, RocCurve)> = runs
             .iter()
             .filter_map(|r| {
-                RocCurve::from_fpr_tpr(&r.roc, r.result.roc_auc, r.result.pr_auc).ok().map(|c| (r.result.method.clone(), c))
+                RocCurve::from_fpr_tpr(&r.roc, r.result.roc_auc, r.result.pr_auc)
+                    .ok()
+                    .map(|c| (r.result.method.clone(), c))
             })
             .collect();
         if curves.is_empty() {
@@ -345,17 +348,15 @@ pub fn cusum_post_attack(opts: &Options) -> Result<(Vec<PathBuf>, String)> {
     let cfgs = opts.config.methods.seeded(0);
     let fitted = fit(Method::Cusum, &cfgs, &splits.train, &splits.valid)?;
     // The test flight with the most attacked steps shows the effect best.
-    let Some(flight) = splits
-        .test
-        .flights()
-        .iter()
-        .max_by_key(|f| f.labels().map_or(0, |l| l.iter().filter(|&&a| a).count()))
+    let Some(flight) =
+        splits.test.flights().iter().max_by_key(|f| f.labels().map_or(0, |l| l.iter().filter(|&&a| a).count()))
     else {
         return Err(ReproduceError::Config("Model I Attack II test split is empty".into()));
     };
     let labels = flight.labels().unwrap_or_default();
     let series = flight.series();
-    let stat = fitted.detector.score(series).map_err(|source| crate::runner::RunError::Score { method: "CUSUM", source })?;
+    let stat =
+        fitted.detector.score(series).map_err(|source| crate::runner::RunError::Score { method: "CUSUM", source })?;
     let threshold = fitted.detector.threshold();
     let t = series.t();
     // Alarms in the 20 s after each attack interval ends.
@@ -442,10 +443,17 @@ pub fn amplitude_sweep(opts: &Options) -> Result<(Vec<SweepPoint>, Vec<PathBuf>)
                 .iter()
                 .zip(&scored.scores)
                 .zip(&scored.alarms)
-                .map(|((f, s), a)| FlightOutcome { t: f.series().t(), scores: s, alarms: a, labels: f.labels().unwrap_or_default() })
+                .map(|((f, s), a)| FlightOutcome {
+                    t: f.series().t(),
+                    scores: s,
+                    alarms: a,
+                    labels: f.labels().unwrap_or_default(),
+                })
                 .collect();
-            let e = evaluate(&outcomes)
-                .map_err(|source| ReproduceError::Metrics { what: format!("sweep {sigma} sigma, {}", method.name()), source })?;
+            let e = evaluate(&outcomes).map_err(|source| ReproduceError::Metrics {
+                what: format!("sweep {sigma} sigma, {}", method.name()),
+                source,
+            })?;
             points.push(SweepPoint { method: method.name().to_owned(), sigma, f1: e.f1() });
         }
     }
@@ -554,8 +562,17 @@ fn write_report(
     wall_s: f64,
 ) {
     let _ = writeln!(s, "# QUADFormer-rs: reproduced results\n");
-    let mode = if opts.quick { "`--quick` (smoke test: small data and models; these numbers are not results)" } else { "full" };
-    let _ = writeln!(s, "Mode: {mode}. Seeds: {}. Runs: {}. Wall time of this invocation: {wall_s:.0} s.", opts.seeds, records.len());
+    let mode = if opts.quick {
+        "`--quick` (smoke test: small data and models; these numbers are not results)"
+    } else {
+        "full"
+    };
+    let _ = writeln!(
+        s,
+        "Mode: {mode}. Seeds: {}. Runs: {}. Wall time of this invocation: {wall_s:.0} s.",
+        opts.seeds,
+        records.len()
+    );
     let _ = writeln!(
         s,
         "Model II channels: {}. Labelled fraction of training flights: {}.\n",
@@ -565,12 +582,16 @@ fn write_report(
         },
         opts.config.labelled_fraction
     );
-    let _ = writeln!(s, "Every number here was produced by this run; thresholds and hyper-parameters were chosen on the validation split; metrics are per step without point adjustment.\n");
+    let _ = writeln!(
+        s,
+        "Every number here was produced by this run; thresholds and hyper-parameters were chosen on the validation split; metrics are per step without point adjustment.\n"
+    );
     let _ = writeln!(s, "## Tables\n");
     let _ = writeln!(s, "- [Table I (Model I)](table1.md), [LaTeX](table1.tex)");
     let _ = writeln!(s, "- [Table II (Model II)](table2.md), [LaTeX](table2.tex)");
     let _ = writeln!(s, "- [All metrics: ROC AUC, PR AUC, detection delay, false alarms per minute](metrics.md)");
-    let _ = writeln!(s, "- Raw: [results.csv](results.csv), [results.json](results.json), [timings.csv](timings.csv)\n");
+    let _ =
+        writeln!(s, "- Raw: [results.csv](results.csv), [results.json](results.json), [timings.csv](timings.csv)\n");
     let _ = writeln!(s, "## ROC curves\n");
     let mut cells: Vec<Cell> = records.iter().map(|r| r.result.cell()).collect();
     cells.dedup();
@@ -607,7 +628,8 @@ fn write_report(
         }
         let _ = writeln!(s);
     }
-    let _ = writeln!(s, "\n## Ablation: fraction of labelled training flights (Model I, exponential, Attack I, seed 0)\n");
+    let _ =
+        writeln!(s, "\n## Ablation: fraction of labelled training flights (Model I, exponential, Attack I, seed 0)\n");
     let _ = writeln!(s, "| method | labelled | P | R | F1 | ROC AUC |\n|---|---|---|---|---|---|");
     for (fraction, r) in fractions {
         let _ = writeln!(

@@ -43,7 +43,8 @@ pub struct Args {
 pub fn run(args: &Args) -> Result<(), CliError> {
     let input = |msg: String| CliError::Input { path: args.out.clone(), msg };
     let config = match (&args.config, args.quick) {
-        (Some(path), _) => MatrixConfig::from_toml_file(path).map_err(|e| CliError::Config { path: path.clone(), msg: e.to_string() })?,
+        (Some(path), _) => MatrixConfig::from_toml_file(path)
+            .map_err(|e| CliError::Config { path: path.clone(), msg: e.to_string() })?,
         (None, true) => MatrixConfig::quick(),
         (None, false) => MatrixConfig::default(),
     };
@@ -61,7 +62,15 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     if seeds == 0 {
         return Err(input("--seeds must be at least 1".into()));
     }
-    let opts = Options { config, quick: args.quick, seeds, cells, methods, out: args.out.clone(), progress: !args.no_progress };
+    let opts = Options {
+        config,
+        quick: args.quick,
+        seeds,
+        cells,
+        methods,
+        out: args.out.clone(),
+        progress: !args.no_progress,
+    };
     let files = reproduce(&opts).map_err(|e| CliError::Run(e.to_string()))?;
     for f in files {
         println!("{}", f.display());
