@@ -268,10 +268,10 @@ impl LabelledSeries {
     /// # Errors
     /// [`ResidueError::Dim`] if there is not one label per step.
     pub fn new(series: ResidueSeries, labels: Option<Vec<bool>>) -> Result<Self, ResidueError> {
-        if let Some(l) = &labels {
-            if l.len() != series.len() {
-                return Err(ResidueError::Dim { what: "labels", expected: series.len(), got: l.len() });
-            }
+        if let Some(l) = &labels
+            && l.len() != series.len()
+        {
+            return Err(ResidueError::Dim { what: "labels", expected: series.len(), got: l.len() });
         }
         Ok(Self { series, labels })
     }
