@@ -367,12 +367,13 @@ pub fn cusum_post_attack(opts: &Options) -> Result<(Vec<PathBuf>, String)> {
         if k > 0 && labels[k - 1] && !labels[k] {
             last_end = Some(t[k]);
         }
-        if let Some(end) = last_end {
-            if !labels[k] && t[k] - end <= 20.0 {
-                post_steps += 1;
-                if stat[k] > threshold {
-                    post_alarms += 1;
-                }
+        if let Some(end) = last_end
+            && !labels[k]
+            && t[k] - end <= 20.0
+        {
+            post_steps += 1;
+            if stat[k] > threshold {
+                post_alarms += 1;
             }
         }
     }

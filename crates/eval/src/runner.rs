@@ -204,7 +204,7 @@ impl MethodConfigs {
         c.quadformer.train.epochs = 2;
         c.quadformer.train.max_windows_per_epoch = Some(256);
         for nn in [&mut c.cnn.0, &mut c.lstm.0] {
-            nn.window = c.quadformer.window.clone();
+            nn.window = c.quadformer.window;
             nn.score_stride = 25;
             nn.hidden = 16;
             nn.train.epochs = 2;
@@ -368,10 +368,10 @@ pub fn run_record(
     let points = e.roc.points();
     let stride = points.len().div_ceil(ROC_POINTS_KEPT).max(1);
     let mut roc: Vec<(f64, f64)> = points.iter().step_by(stride).map(|p| (p.fpr, p.tpr)).collect();
-    if let Some(last) = points.last() {
-        if roc.last() != Some(&(last.fpr, last.tpr)) {
-            roc.push((last.fpr, last.tpr));
-        }
+    if let Some(last) = points.last()
+        && roc.last() != Some(&(last.fpr, last.tpr))
+    {
+        roc.push((last.fpr, last.tpr));
     }
     Ok(RunRecord { key, result, roc })
 }
