@@ -5,6 +5,20 @@
 //! LabelledResidues}` and implements `ekf_residue::{Fit, Detector}`; it knows nothing about the
 //! baselines or the evaluation.
 //!
+//! The detector:
+//! - [`model`]: the network — UAV Attack Attention with TPC (eq:TPC) and DCM
+//!   (eq:first_layer_attention, eq:cross_layer_attention), reconstruction and classification
+//!   heads, TCD (Jensen–Shannon, [`model::js_divergence`]) and the min-max losses with the
+//!   Anomaly Transformer's stop-gradient split ([`model::LossTerms`], [`model::MinMaxTrainer`]);
+//! - [`detector`]: [`QuadFormerConfig`] implements `ekf_residue::Fit`; the fitted
+//!   [`QuadFormerDetector`] implements `Detector` with four scoring modes ([`ScoreMode`]:
+//!   alg:alg2's `softmax(−TCD)`, the Anomaly Transformer criterion, the classifier probability,
+//!   a combination) whose thresholds are chosen on the validation split, and a streaming
+//!   [`OnlineQuadFormer`];
+//! - [`checkpoint`]: safetensors weights + versioned JSON manifest with integrity checks.
+//!
+//! Usage and training guide: `docs/quadformer.md`.
+//!
 //! Model-agnostic building blocks, shared with the CNN/LSTM baselines so that every learning
 //! method sees the same data and loop:
 //! - [`window`]: [`Normaliser`] (per-channel standardisation fitted on training data, saved
