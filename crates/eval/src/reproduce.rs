@@ -234,6 +234,12 @@ impl CellSplits {
         Ok(s)
     }
 
+    /// The identity of the training data for run caching: dataset key, labelled fraction and
+    /// channels.
+    fn data_key(data: &Dataset, cfg: &MatrixConfig, fraction: f64) -> String {
+        format!("{}/labelled={fraction}/model2={:?}", data.key(), cfg.model2_channels)
+    }
+
     fn splits(&self) -> Splits<'_> {
         Splits { train: &self.train, valid: &self.valid, test: &self.test }
     }
@@ -292,7 +298,8 @@ pub fn run_matrix(opts: &Options) -> Result<Vec<RunRecord>> {
                     continue;
                 }
                 bar.set_message(format!("{} seed {seed}: {}", cell.slug(), method.name()));
-                let rec = run_one(&cache_dir, data.key(), cell, method, seed, &opts.config.methods, splits.splits())?;
+                let data_key = CellSplits::data_key(&data, &opts.config, opts.config.labelled_fraction);
+                let rec = run_one(&cache_dir, &data_key, cell, method, seed, &opts.config.methods, splits.splits())?;
                 bar.inc(1);
                 out.push(rec);
             }
@@ -488,12 +495,13 @@ pub fn amplitude_sweep(opts: &Options) -> Result<(Vec<SweepPoint>, Vec<PathBuf>)
 pub fn label_fraction_ablation(opts: &Options) -> Result<Vec<(f64, RunResult)>> {
     let cell = Cell { model: UavModel::I, noise: NoiseModel::Exponential, attack: AttackModel::I };
     let data = load_cell(cell, 0, opts)?;
+    let cache = opts.out.join("runs");
     let mut rows = Vec::new();
     for &fraction in &opts.config.ablation_fractions {
         let splits = CellSplits::from_dataset(cell, &data, &opts.config, fraction)?;
-        let cache = opts.out.join("runs").join(format!("ablation-labels-{fraction}"));
+        let data_key = CellSplits::data_key(&data, &opts.config, fraction);
         for &m in opts.methods.iter().filter(|m| m.is_learning()) {
-            let rec = run_one(&cache, data.key(), cell, m, 0, &opts.config.methods, splits.splits())?;
+            let rec = run_one(&cache, &data_key, cell, m, 0, &opts.config.methods, splits.splits())?;
             rows.push((fraction, rec.result));
         }
     }
@@ -509,13 +517,14 @@ pub fn architecture_ablation(opts: &Options) -> Result<Vec<(String, RunResult)>>
     let cell = Cell { model: UavModel::I, noise: NoiseModel::Exponential, attack: AttackModel::I };
     let data = load_cell(cell, 0, opts)?;
     let splits = CellSplits::from_dataset(cell, &data, &opts.config, opts.config.labelled_fraction)?;
+    let cache = opts.out.join("runs");
     let mut rows = Vec::new();
     for (name, tpc, dcm) in [("full", true, true), ("no TPC", false, true), ("no DCM", true, false)] {
         let mut cfgs = opts.config.methods.clone();
         cfgs.quadformer.net.prior = if tpc { Prior::Tpc } else { Prior::Gaussian };
         cfgs.quadformer.net.dcm = dcm;
-        let cache = opts.out.join("runs").join(format!("ablation-arch-{}", name.replace(' ', "-")));
-        let rec = run_one(&cache, data.key(), cell, Method::QuadFormer, 0, &cfgs, splits.splits())?;
+        let data_key = CellSplits::data_key(&data, &opts.config, opts.config.labelled_fraction);
+        let rec = run_one(&cache, &data_key, cell, Method::QuadFormer, 0, &cfgs, splits.splits())?;
         rows.push((name.to_owned(), rec.result));
     }
     Ok(rows)

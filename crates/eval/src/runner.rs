@@ -20,6 +20,12 @@ use crate::io::write_text_atomic;
 use crate::metrics::{FlightOutcome, evaluate};
 use crate::table::{Cell, RunResult};
 
+/// Training epochs of every learning method in the full run (decision 004).
+pub const FULL_EPOCHS: usize = 4;
+
+/// Windows drawn per epoch for every learning method in the full run (decision 004).
+pub const FULL_WINDOWS_PER_EPOCH: usize = 1024;
+
 /// Largest number of ROC points kept per run for plotting.
 const ROC_POINTS_KEPT: usize = 200;
 
@@ -188,11 +194,17 @@ pub struct MethodConfigs {
 impl MethodConfigs {
     /// The configuration of the full run: every method's defaults, with per-epoch progress bars
     /// off (the runner shows its own).
+    ///
+    /// Every learning method gets the same training budget, at most [`FULL_EPOCHS`] epochs of at
+    /// most [`FULL_WINDOWS_PER_EPOCH`] randomly drawn windows, so the full matrix fits a 2-core
+    /// machine (docs/decisions/004-training-budget.md); early stopping on validation still applies.
     pub fn full() -> Self {
         let mut c = Self::default();
-        c.quadformer.train.progress = false;
-        c.cnn.0.train.progress = false;
-        c.lstm.0.train.progress = false;
+        for t in [&mut c.quadformer.train, &mut c.cnn.0.train, &mut c.lstm.0.train] {
+            t.progress = false;
+            t.epochs = FULL_EPOCHS;
+            t.max_windows_per_epoch = Some(FULL_WINDOWS_PER_EPOCH);
+        }
         c
     }
 
@@ -391,9 +403,12 @@ pub fn run_key(dataset_key: &str, method: Method, cfgs: &MethodConfigs) -> Strin
     digest.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// Where the cached record of `(cell, method, seed)` lives under `cache_dir`.
-pub fn cache_path(cache_dir: &Path, cell: Cell, method: Method, seed: u64) -> PathBuf {
-    cache_dir.join(cell.slug()).join(format!("{}-seed{seed}.json", method.slug()))
+/// Where the cached record of a run lives under `cache_dir`: per cell, named by method, seed and
+/// the first 12 hex digits of its key, so variants of one run (ablations) coexist and identical
+/// runs are shared.
+pub fn cache_path(cache_dir: &Path, cell: Cell, method: Method, seed: u64, key: &str) -> PathBuf {
+    let short = key.get(..12).unwrap_or(key);
+    cache_dir.join(cell.slug()).join(format!("{}-seed{seed}-{short}.json", method.slug()))
 }
 
 /// Loads a cached record if it exists, parses, and has the expected key; anything else is a
@@ -419,12 +434,15 @@ pub fn store_cached(path: &Path, rec: &RunRecord) -> Result<()> {
 
 /// Fits, scores and evaluates one `(cell, method, seed)`, or returns its cached record.
 ///
+/// `data_key` must identify the training data exactly: the dataset's cache key plus anything
+/// applied after loading (the labelled fraction, the channel selection).
+///
 /// # Errors
 /// As [`fit`], [`score_split`], [`run_record`] and [`store_cached`].
 #[allow(clippy::too_many_arguments)]
 pub fn run_one(
     cache_dir: &Path,
-    dataset_key: &str,
+    data_key: &str,
     cell: Cell,
     method: Method,
     seed: u64,
@@ -432,8 +450,8 @@ pub fn run_one(
     splits: Splits<'_>,
 ) -> Result<RunRecord> {
     let cfgs = cfgs.seeded(seed);
-    let key = run_key(dataset_key, method, &cfgs);
-    let path = cache_path(cache_dir, cell, method, seed);
+    let key = run_key(data_key, method, &cfgs);
+    let path = cache_path(cache_dir, cell, method, seed, &key);
     if let Some(rec) = load_cached(&path, &key) {
         return Ok(rec);
     }
