@@ -4,9 +4,9 @@
 //!
 //! Both share QUADFormer's data path and loop (`quadformer_model`): per-channel
 //! [`Normaliser`] fitted on the labelled training flights, [`Windows`] of `l` steps × `m`
-//! channels (`b × l × m` tensors), the seeded AdamW [`train`] loop with early stopping on the
+//! channels (`b × l × m` tensors), the seeded AdamW [`train()`] loop with early stopping on the
 //! validation BCE, [`init_vars_seeded`] for seeded initialisation, and
-//! [`SeriesWindows::stitch`] to turn per-window, per-step logits into one score per step (the
+//! [`quadformer_model::SeriesWindows::stitch`] to turn per-window, per-step logits into one score per step (the
 //! mean over the covering windows). The loss is the masked per-step binary cross-entropy with
 //! logits; the alarm threshold on the stitched logit is chosen on the validation split (best
 //! F1). They train on the labelled flights only (the same subset as QUADFormer's
