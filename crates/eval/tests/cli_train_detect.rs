@@ -254,6 +254,17 @@ fn channel_mismatch_and_bad_lines_name_the_file() {
     assert!(err.contains("b.csv") && err.contains("channel mismatch"), "{err}");
     assert!(!m2.exists(), "no model directory after an error");
 
+    // Validation data without any attacked step: no threshold can be chosen.
+    let clean = tmp.path().join("valid-clean");
+    std::fs::create_dir(&clean).unwrap();
+    let text = std::fs::read_to_string(&files(&ds.join("valid"))[0]).unwrap();
+    let clean_text: String =
+        text.lines().map(|l| l.strip_suffix(",1").map_or(l.to_owned(), |x| format!("{x},0")) + "\n").collect();
+    std::fs::write(clean.join("a.csv"), clean_text).unwrap();
+    let err = fails(&["train", "--method", "chi2", "--train", s(&tr), "--valid", s(&clean), "--out", s(&m2)]);
+    assert!(err.contains("valid-clean") && err.contains("fit failed") && err.contains("attacked"), "{err}");
+    assert!(!m2.exists(), "no model directory after an error");
+
     // A value that is not a number, on line 5, column 2.
     let input = files(&ds.join("test"))[0].clone();
     let text = std::fs::read_to_string(&input).unwrap();

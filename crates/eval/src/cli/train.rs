@@ -242,13 +242,30 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     let channels = train.channels().to_vec();
     let valid = read_split(&valid_files, Some(&channels), true)?;
     let method = args.method;
-    let fit_err = |msg: String| CliError::Run(format!("{}: fit failed: {msg}", method.name()));
+    let fit_err = |msg: String| {
+        CliError::Run(format!("--train {}, --valid {}: {msg}", args.train.display(), args.valid.display()))
+    };
+    // A threshold that is not finite cannot be stored in JSON and alarms never or always.
+    let finite = |threshold: f64| {
+        if threshold.is_finite() {
+            Ok(threshold)
+        } else {
+            Err(CliError::Input {
+                path: args.valid.clone(),
+                msg: format!(
+                    "{} chose threshold {threshold} on these files; do they contain attacked steps?",
+                    method.name()
+                ),
+            })
+        }
+    };
     let trained_on: Vec<String> = train_files.iter().chain(&valid_files).map(|p| p.display().to_string()).collect();
     let overwrite = if args.force { Overwrite::Replace } else { Overwrite::Refuse };
 
     let threshold = if method == Method::QuadFormer {
-        let det = cfgs.quadformer.fit(&train, &valid).map_err(|e| fit_err(e.to_string()))?;
-        let threshold = det.threshold();
+        let det =
+            cfgs.quadformer.fit(&train, &valid).map_err(|e| fit_err(format!("{}: fit failed: {e}", method.name())))?;
+        let threshold = finite(det.threshold())?;
         let manifest = manifest(
             method,
             &channels,
@@ -265,8 +282,8 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         })?;
         threshold
     } else {
-        let fitted = fit(method, &cfgs, &train, &valid).map_err(|e| CliError::Run(e.to_string()))?;
-        let threshold = fitted.detector.threshold();
+        let fitted = fit(method, &cfgs, &train, &valid).map_err(|e| fit_err(e.to_string()))?;
+        let threshold = finite(fitted.detector.threshold())?;
         let rel = |split: &str, files: &[PathBuf]| -> Vec<String> {
             files.iter().enumerate().map(|(i, p)| recorded_name(split, i, p)).collect()
         };
