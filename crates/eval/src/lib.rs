@@ -12,4 +12,5 @@ pub mod metrics;
 pub mod plot;
 pub mod reproduce;
 pub mod runner;
+pub mod scenarios;
 pub mod table;

@@ -15,6 +15,8 @@ use crate::io::IoError;
 
 pub mod dataset;
 pub mod detect;
+pub mod figures;
+pub mod fuse;
 pub mod reproduce_tables;
 pub mod residues;
 pub mod simulate;
@@ -51,6 +53,12 @@ pub enum Command {
     Train(train::Args),
     /// Score a residue CSV with a trained model directory and write per-step scores and alarms.
     Detect(detect::Args),
+    /// Fly the paper's closed-loop scenarios (no attack; attack without and with detection,
+    /// alg:alg3) and write a metrics table and top-view plots.
+    Fuse(fuse::Args),
+    /// Run `fuse` for every scenario with the NIS gate and QUADFormer at 1 s and zero latency
+    /// and write the combined table and plots under OUT/scenarios.
+    Figures(figures::Args),
 }
 
 /// Runs a parsed command line.
@@ -65,6 +73,8 @@ pub fn run(cli: &Cli) -> Result<(), CliError> {
         Command::Dataset(args) => dataset::run(args),
         Command::Train(args) => train::run(args),
         Command::Detect(args) => detect::run(args),
+        Command::Fuse(args) => fuse::run(args),
+        Command::Figures(args) => figures::run(args),
     }
 }
 

@@ -1,0 +1,322 @@
+//! `quadformer fuse`: flies the paper's closed-loop scenarios (fig:simu1–3, fig:real1–2) in the
+//! three cases (no attack; GPS attack without detection; GPS attack with detection and the
+//! resilient fusion of alg:alg3) and writes `scenarios.md`, `scenarios.csv` (one row per
+//! scenario × case × vehicle, metres and seconds; [`crate::scenarios`]) and top-view plots
+//! (`plots/*.png|svg`, world ENU east/north, attack window highlighted).
+//!
+//! Detectors (decision 090): `nis` is resilient-fusion's χ²₃ NIS gate on the GPS innovation
+//! (no fitting); `chi2`, `cusum` and `quadformer` are fitted with [`crate::runner::fit`]
+//! (thresholds chosen on validation) on the quick dataset cell `model2-gaussian-persistent`
+//! restricted to the GPS channels `gps_x gps_y gps_z`, with the `--quick` method configurations,
+//! or loaded from a model directory (`--model`, written by `quadformer train`), whose training
+//! channels become the fusion's detector channels. Batch detectors run through
+//! [`ekf_residue::Detector::online`]; resilient-fusion stays candle-free.
+
+use std::path::{Path, PathBuf};
+
+use attack_inject::AttackKind;
+use ekf_residue::Detector;
+use ekf_residue::detector::OnlineDetector;
+use ekf_residue::residues::{GPS_CHANNELS, ModelKind};
+use resilient_fusion::estimator::NisGate;
+use resilient_fusion::scenario::{Case, Scenario, ScenarioConfig, run_case};
+use uav_dynamics::noise::NoiseShape;
+
+use crate::cli::CliError;
+use crate::cli::detect::load_detector;
+use crate::cli::train::read_manifest;
+use crate::dataset::{DatasetConfig, load_or_build};
+use crate::io::write_text_atomic;
+use crate::runner::{Method, MethodConfigs, fit};
+use crate::scenarios::{ScenarioRow, markdown, plot_case, rows, write_csv};
+
+/// Scenario selection of `--scenario`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ScenarioArg {
+    /// Eight-shape, two loops (fig:simu1).
+    Eight,
+    /// UST letters (fig:simu2).
+    Ust,
+    /// Four-UAV square formation, UAV 3 attacked (fig:simu3).
+    Formation,
+    /// Diagonal (fig:real1).
+    Diagonal,
+    /// Square (fig:real2).
+    Square,
+    /// All five.
+    All,
+}
+
+impl ScenarioArg {
+    /// The value as written on the command line.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::All => "all",
+            Self::Eight => "eight",
+            Self::Ust => "ust",
+            Self::Formation => "formation",
+            Self::Diagonal => "diagonal",
+            Self::Square => "square",
+        }
+    }
+
+    /// The scenarios selected.
+    #[must_use]
+    pub fn scenarios(self) -> Vec<Scenario> {
+        match self {
+            Self::Eight => vec![Scenario::Eight],
+            Self::Ust => vec![Scenario::Ust],
+            Self::Formation => vec![Scenario::Formation],
+            Self::Diagonal => vec![Scenario::Diagonal],
+            Self::Square => vec![Scenario::Square],
+            Self::All => Scenario::ALL.to_vec(),
+        }
+    }
+}
+
+/// Detector selection of `--detector`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DetectorArg {
+    /// χ²₃ NIS gate at the 0.999 quantile on the GPS innovation (no fitting).
+    Nis,
+    /// Chi-squared test on the NIS, fitted (or loaded with --model).
+    Chi2,
+    /// CUSUM on the NIS, fitted (or loaded with --model).
+    Cusum,
+    /// QUADFormer, trained on the quick cell (or loaded with --model).
+    Quadformer,
+}
+
+impl DetectorArg {
+    /// Label used in tables and file names.
+    #[must_use]
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Nis => "nis",
+            Self::Chi2 => "chi2",
+            Self::Cusum => "cusum",
+            Self::Quadformer => "quadformer",
+        }
+    }
+
+    fn method(self) -> Option<Method> {
+        match self {
+            Self::Nis => None,
+            Self::Chi2 => Some(Method::Chi2),
+            Self::Cusum => Some(Method::Cusum),
+            Self::Quadformer => Some(Method::QuadFormer),
+        }
+    }
+}
+
+/// Arguments of `quadformer fuse`.
+#[derive(Debug, clap::Args)]
+#[command(after_help = "Fitted detectors (chi2, cusum, quadformer without --model) are fitted on the quick \
+dataset cell model2-gaussian-persistent restricted to gps_x gps_y gps_z (cached under --cache); see \
+docs/decisions/090-fuse-detectors.md and docs/scenarios.md.")]
+pub struct Args {
+    /// Which scenario to fly.
+    #[arg(long, value_enum)]
+    pub scenario: ScenarioArg,
+    /// Detector of the detected case.
+    #[arg(long, value_enum, default_value = "nis")]
+    pub detector: DetectorArg,
+    /// Model directory written by `quadformer train` (chi2, cusum or quadformer; its method must
+    /// match --detector).
+    #[arg(long, value_name = "MODEL_DIR")]
+    pub model: Option<PathBuf>,
+    /// Decision latency of the detector, seconds (paper: about 1 s on the edge device).
+    #[arg(long, default_value_t = 1.0)]
+    pub latency_s: f64,
+    /// Seed of the sensor noise (vehicle i uses seed + i) and of the detector fit.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Dataset cache for fitted detectors (default OUT/datasets).
+    #[arg(long, value_name = "DIR")]
+    pub cache: Option<PathBuf>,
+    /// Output directory.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+/// A detector ready for the scenarios: the NIS gate, or a fitted / loaded batch detector.
+pub enum FusionDetector {
+    /// resilient-fusion's NIS gate.
+    Nis,
+    /// A batch detector run online.
+    Batch(Box<dyn Detector>),
+}
+
+impl std::fmt::Debug for FusionDetector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Nis => f.write_str("Nis"),
+            Self::Batch(d) => write!(f, "Batch({})", d.name()),
+        }
+    }
+}
+
+impl FusionDetector {
+    /// Channels the detector reads (the fusion's `detector_channels`).
+    #[must_use]
+    pub fn channels(&self) -> Vec<String> {
+        match self {
+            Self::Nis => GPS_CHANNELS.iter().map(|s| (*s).to_owned()).collect(),
+            Self::Batch(d) => d.channels().to_vec(),
+        }
+    }
+}
+
+/// Builds the detector of `which`: the NIS gate, a model directory, or a fit on the quick cell.
+///
+/// # Errors
+/// [`CliError`] when the model directory is unreadable or of another method, or the dataset or
+/// fit fails.
+pub fn make_detector(
+    which: DetectorArg,
+    model: Option<&Path>,
+    seed: u64,
+    cache: &Path,
+) -> Result<FusionDetector, CliError> {
+    let Some(method) = which.method() else {
+        if let Some(m) = model {
+            return Err(CliError::Input { path: m.to_owned(), msg: "--model is not used by --detector nis".into() });
+        }
+        return Ok(FusionDetector::Nis);
+    };
+    if let Some(dir) = model {
+        let manifest = read_manifest(dir)?;
+        if manifest.method != method {
+            return Err(CliError::Input {
+                path: dir.to_owned(),
+                msg: format!("the model is {}, but --detector is {}", manifest.method.name(), which.label()),
+            });
+        }
+        return Ok(FusionDetector::Batch(load_detector(dir, &manifest)?));
+    }
+    let cfg = DatasetConfig { seed, ..DatasetConfig::quick(ModelKind::ModelII, NoiseShape::Gaussian, AttackKind::Persistent) };
+    let cell = cfg.cell_name();
+    let valid_cfg = cfg.check().map_err(|e| CliError::Run(format!("dataset {cell}: {e}")))?;
+    let (data, outcome) = load_or_build(&valid_cfg, cache).map_err(|e| CliError::Run(format!("dataset {cell}: {e}")))?;
+    eprintln!("dataset {cell}: {outcome:?}");
+    let run = |e: &dyn std::fmt::Display| CliError::Run(format!("dataset {cell}, GPS channels: {e}"));
+    let (train, valid) = (data.train().map_err(|e| run(&e))?, data.valid().map_err(|e| run(&e))?);
+    let (train, valid) =
+        (train.select_channels(&GPS_CHANNELS).map_err(|e| run(&e))?, valid.select_channels(&GPS_CHANNELS).map_err(|e| run(&e))?);
+    let cfgs = MethodConfigs::quick().seeded(seed);
+    let fitted = fit(method, &cfgs, &train, &valid).map_err(|e| run(&e))?;
+    eprintln!(
+        "fitted {} on {cell} (gps_x gps_y gps_z) in {:.1} s, threshold {:.4}",
+        method.name(),
+        fitted.train_s,
+        fitted.detector.threshold()
+    );
+    Ok(FusionDetector::Batch(fitted.detector))
+}
+
+/// Flies `scenarios` with every `(label, detector)` at every latency; the no-attack and
+/// undetected cases once per scenario. Plots go to `plot_dir`.
+///
+/// # Errors
+/// [`CliError::Run`] naming the scenario and case when a flight fails; plot errors.
+pub fn fly_all(
+    scenarios: &[Scenario],
+    detectors: &[(&str, &FusionDetector)],
+    latencies: &[f64],
+    seed: u64,
+    plot_dir: &Path,
+) -> Result<Vec<ScenarioRow>, CliError> {
+    let mut all = Vec::new();
+    for &sc in scenarios {
+        let fail = |case: Case, e: &dyn std::fmt::Display| CliError::Run(format!("{} {}: {e}", sc.name(), case.name()));
+        let base = ScenarioConfig { seed, ..ScenarioConfig::default() };
+        for case in [Case::NoAttack, Case::AttackUndetected] {
+            let r = run_case(sc, case, &base, None).map_err(|e| fail(case, &e))?;
+            all.extend(rows(&r, "none", base.resilient.latency_s));
+            plot_case(plot_dir, &r, "none", base.resilient.latency_s).map_err(|e| fail(case, &e))?;
+        }
+        for &(label, det) in detectors {
+            for &latency_s in latencies {
+                let mut cfg = base.clone();
+                cfg.resilient.latency_s = latency_s;
+                cfg.resilient.detector_channels = det.channels();
+                let case = Case::AttackDetected;
+                let r = match det {
+                    FusionDetector::Nis => {
+                        let f = |_: usize| -> resilient_fusion::Result<Box<dyn OnlineDetector>> {
+                            Ok(Box::new(NisGate::new(NisGate::CHI2_3_999)?))
+                        };
+                        run_case(sc, case, &cfg, Some(&f))
+                    }
+                    FusionDetector::Batch(d) => {
+                        let f = |_: usize| -> resilient_fusion::Result<Box<dyn OnlineDetector + '_>> { Ok(d.online()) };
+                        run_case(sc, case, &cfg, Some(&f))
+                    }
+                }
+                .map_err(|e| fail(case, &e))?;
+                eprintln!("{} {} ({label}, latency {latency_s} s) done", sc.name(), case.name());
+                all.extend(rows(&r, label, latency_s));
+                plot_case(plot_dir, &r, label, latency_s).map_err(|e| fail(case, &e))?;
+            }
+        }
+    }
+    Ok(all)
+}
+
+/// Writes `scenarios.csv` and `scenarios.md` (with `heading` above the table) into `out`.
+///
+/// # Errors
+/// [`CliError::Io`] naming the file.
+pub fn write_tables(out: &Path, heading: &str, all: &[ScenarioRow]) -> Result<(), CliError> {
+    write_csv(&out.join("scenarios.csv"), all)?;
+    let md = format!(
+        "{heading}\n\nAttacked vehicle of every case (all vehicles in scenarios.csv); \"× no attack\" is the \
+         tracking RMSE over the no-attack case's. Plots: plots/.\n\n{}",
+        markdown(all)
+    );
+    write_text_atomic(&out.join("scenarios.md"), &md)?;
+    Ok(())
+}
+
+/// Checks `--latency-s`.
+fn check_latency(latency_s: f64) -> Result<(), CliError> {
+    if latency_s.is_finite() && latency_s >= 0.0 {
+        Ok(())
+    } else {
+        Err(CliError::Run(format!("--latency-s must be finite and non-negative, got {latency_s}")))
+    }
+}
+
+/// Creates `dir`.
+pub(crate) fn create_dir(dir: &Path) -> Result<(), CliError> {
+    std::fs::create_dir_all(dir)
+        .map_err(|source| crate::io::IoError::Fs { path: dir.to_owned(), op: "create directory", source }.into())
+}
+
+/// Runs `quadformer fuse`.
+///
+/// # Errors
+/// [`CliError`] for a bad latency, an unusable model directory, a failed fit or flight, or an
+/// output that cannot be written.
+pub fn run(args: &Args) -> Result<(), CliError> {
+    check_latency(args.latency_s)?;
+    let cache = args.cache.clone().unwrap_or_else(|| args.out.join("datasets"));
+    let det = make_detector(args.detector, args.model.as_deref(), args.seed, &cache)?;
+    let plots = args.out.join("plots");
+    create_dir(&plots)?;
+    let label = args.detector.label();
+    let all = fly_all(&args.scenario.scenarios(), &[(label, &det)], &[args.latency_s], args.seed, &plots)?;
+    let heading = format!(
+        "# Flight scenarios: detector {label}, latency {} s, seed {}\n\nGenerated by `quadformer fuse --scenario \
+         {} --detector {label} --latency-s {} --seed {}`.",
+        args.latency_s,
+        args.seed,
+        args.scenario.name(),
+        args.latency_s,
+        args.seed
+    );
+    write_tables(&args.out, &heading, &all)?;
+    eprintln!("wrote {} ({} rows)", args.out.join("scenarios.csv").display(), all.len());
+    Ok(())
+}

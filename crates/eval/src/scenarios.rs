@@ -1,0 +1,194 @@
+//! Tables and top-view plots of the paper's closed-loop flight scenarios (fig:simu1 eight,
+//! fig:simu2 UST, fig:simu3 formation, fig:real1 diagonal, fig:real2 square; alg:alg3), from the
+//! results of [`resilient_fusion::scenario::run_case`].
+//!
+//! One [`ScenarioRow`] per scenario × case × vehicle (× detector × decision latency), written as
+//! CSV ([`write_csv`]) and as a Markdown table of the attacked vehicles with the tracking RMSE
+//! relative to the no-attack case ([`markdown`]). Units: metres and seconds, positions in the
+//! world ENU frame; the plots are top views (east x, north y).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use resilient_fusion::scenario::{Case, CaseResult, Scenario};
+
+use crate::io::{IoError, write_text_atomic};
+use crate::plot::{PlotError, TopView, top_view_plot};
+
+/// One vehicle of one case of one scenario, with the detector and latency it ran with.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScenarioRow {
+    /// Scenario.
+    pub scenario: Scenario,
+    /// Case.
+    pub case: Case,
+    /// Detector label (`none` for the cases without detection).
+    pub detector: String,
+    /// Decision latency of the resilient estimator, s.
+    pub latency_s: f64,
+    /// Vehicle index (0-based).
+    pub vehicle: usize,
+    /// Whether this vehicle's GPS is spoofed in this case.
+    pub attacked: bool,
+    /// Metrics of the vehicle.
+    pub metrics: resilient_fusion::scenario::FlightMetrics,
+    /// Formation-shape RMSE and maximum, m (formation scenario only).
+    pub formation: Option<resilient_fusion::scenario::FormationMetrics>,
+}
+
+/// The rows of one case result.
+#[must_use]
+pub fn rows(result: &CaseResult, detector: &str, latency_s: f64) -> Vec<ScenarioRow> {
+    let detector = if result.case == Case::AttackDetected { detector } else { "none" };
+    result
+        .vehicles
+        .iter()
+        .enumerate()
+        .map(|(i, v)| ScenarioRow {
+            scenario: result.scenario,
+            case: result.case,
+            detector: detector.to_owned(),
+            latency_s,
+            vehicle: i,
+            attacked: result.case != Case::NoAttack && i == result.attacked_vehicle,
+            metrics: v.metrics,
+            formation: result.formation,
+        })
+        .collect()
+}
+
+/// CSV header of [`write_csv`].
+pub const CSV_HEADER: &str = "scenario,case,detector,latency_s,vehicle,attacked,tracking_rmse_m,tracking_max_m,\
+estimate_rmse_m,time_under_attack_s,time_gps_excluded_s,excluded_outside_attack_s,detection_delay_s,\
+exclusion_delay_s,formation_shape_rmse_m,formation_shape_max_m";
+
+fn opt(x: Option<f64>) -> String {
+    x.map_or_else(String::new, |x| format!("{x:.6}"))
+}
+
+/// The rows as CSV text ([`CSV_HEADER`]; empty fields for absent delays and formation errors).
+#[must_use]
+pub fn csv(rows: &[ScenarioRow]) -> String {
+    let mut s = String::from(CSV_HEADER);
+    s.push('\n');
+    for r in rows {
+        let m = &r.metrics;
+        let _ = writeln!(
+            s,
+            "{},{},{},{},{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{}",
+            r.scenario.name(),
+            r.case.name(),
+            r.detector,
+            r.latency_s,
+            r.vehicle,
+            u8::from(r.attacked),
+            m.tracking_rmse_m,
+            m.tracking_max_m,
+            m.estimate_rmse_m,
+            m.time_under_attack_s,
+            m.time_gps_excluded_s,
+            m.excluded_outside_attack_s,
+            opt(m.detection_delay_s),
+            opt(m.exclusion_delay_s),
+            opt(r.formation.map(|f| f.shape_rmse_m)),
+            opt(r.formation.map(|f| f.shape_max_m)),
+        );
+    }
+    s
+}
+
+/// Writes [`csv`] atomically to `path`.
+///
+/// # Errors
+/// [`IoError`] naming the file.
+pub fn write_csv(path: &Path, rows: &[ScenarioRow]) -> Result<(), IoError> {
+    write_text_atomic(path, &csv(rows))
+}
+
+/// Tracking RMSE of the no-attack case of the same scenario and vehicle (the reference of the
+/// ratio column), if present in `rows`.
+fn no_attack_rmse(rows: &[ScenarioRow], row: &ScenarioRow) -> Option<f64> {
+    rows.iter()
+        .find(|r| r.scenario == row.scenario && r.case == Case::NoAttack && r.vehicle == row.vehicle)
+        .map(|r| r.metrics.tracking_rmse_m)
+}
+
+/// Markdown table of the attacked vehicle of every case (all vehicles of the formation are in
+/// the CSV): tracking RMSE and its ratio to the no-attack case, maximum deviation, estimate
+/// RMSE, time under attack, time GPS excluded (and outside the attack), detection and exclusion
+/// delays, formation-shape RMSE.
+#[must_use]
+pub fn markdown(rows: &[ScenarioRow]) -> String {
+    let mut s = String::from(
+        "| scenario | case | detector | latency s | RMSE m | × no attack | max dev m | est. RMSE m | attack s | \
+         GPS excluded s | excl. outside s | det. delay s | excl. delay s | formation RMSE m |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let f2 = |x: Option<f64>| x.map_or_else(|| "–".to_owned(), |x| format!("{x:.2}"));
+    let mut attacked_idx: Vec<usize> = Vec::new();
+    for (i, r) in rows.iter().enumerate() {
+        // The attacked vehicle (in the no-attack case: the vehicle that is attacked in the others).
+        let target = rows
+            .iter()
+            .find(|o| o.scenario == r.scenario && o.attacked)
+            .map_or(0, |o| o.vehicle);
+        if r.vehicle == target {
+            attacked_idx.push(i);
+        }
+    }
+    for &i in &attacked_idx {
+        let r = &rows[i];
+        let m = &r.metrics;
+        let ratio = no_attack_rmse(rows, r).filter(|&b| b > 0.0).map(|b| m.tracking_rmse_m / b);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {:.2} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {} | {} | {} |",
+            r.scenario.name(),
+            r.case.name(),
+            r.detector,
+            r.latency_s,
+            m.tracking_rmse_m,
+            ratio.map_or_else(|| "–".to_owned(), |x| format!("{x:.1}")),
+            m.tracking_max_m,
+            m.estimate_rmse_m,
+            m.time_under_attack_s,
+            m.time_gps_excluded_s,
+            m.excluded_outside_attack_s,
+            f2(m.detection_delay_s),
+            f2(m.exclusion_delay_s),
+            f2(r.formation.map(|f| f.shape_rmse_m)),
+        );
+    }
+    s
+}
+
+/// Top views of one case, one figure per vehicle: `<dir>/<scenario>-<case>[-<detector>]
+/// [-uav<i>].{png,svg}` (the vehicle suffix only for multi-vehicle scenarios, the detector
+/// suffix only in the detected case). The estimate is drawn thick red inside the attack window.
+///
+/// # Errors
+/// [`PlotError`] when drawing or writing fails.
+pub fn plot_case(dir: &Path, result: &CaseResult, detector: &str, latency_s: f64) -> Result<Vec<PathBuf>, PlotError> {
+    let mut out = Vec::new();
+    let multi = result.vehicles.len() > 1;
+    for (i, v) in result.vehicles.iter().enumerate() {
+        let tr = &v.trace;
+        let xy = |p: &[nalgebra::Vector3<f64>]| p.iter().map(|p| (p.x, p.y)).collect::<Vec<_>>();
+        let (reference, truth, estimate) = (xy(&tr.reference), xy(&tr.truth), xy(&tr.estimate));
+        let attacked: Vec<bool> =
+            tr.t.iter().map(|&t| tr.attack_interval.is_some_and(|(a0, a1)| t > a0 && t <= a1)).collect();
+        let mut stem = format!("{}-{}", result.scenario.name(), result.case.name());
+        let mut title = format!("{}: {}", result.scenario.name(), result.case.name().replace('_', " "));
+        if result.case == Case::AttackDetected {
+            let _ = write!(stem, "-{detector}-lat{latency_s}");
+            let _ = write!(title, " ({detector}, latency {latency_s} s)");
+        }
+        if multi {
+            let _ = write!(stem, "-uav{}", i + 1);
+            let _ = write!(title, ", UAV {}", i + 1);
+        }
+        let view = TopView { reference: &reference, truth: &truth, estimate: &estimate, attacked: &attacked };
+        out.extend(top_view_plot(&dir.join(stem), &title, view)?);
+    }
+    Ok(out)
+}
