@@ -120,8 +120,7 @@ pub fn vo_jacobian(x: &State) -> Option<VoJacobian> {
     c.fixed_view_mut::<3, 3>(0, IDX_PF).copy_from(&(-r_f.transpose()));
     c.fixed_view_mut::<3, 3>(0, IDX_QF).copy_from(&dzp_dqf);
     c.fixed_view_mut::<3, 3>(3, model1::IDX_Q).copy_from(&(g_rel_inv * euler_rate_to_body(&q)));
-    c.fixed_view_mut::<3, 3>(3, IDX_QF)
-        .copy_from(&(-g_rel_inv * r_rel.transpose() * euler_rate_to_body(&q_f)));
+    c.fixed_view_mut::<3, 3>(3, IDX_QF).copy_from(&(-g_rel_inv * r_rel.transpose() * euler_rate_to_body(&q_f)));
     Some(c)
 }
 

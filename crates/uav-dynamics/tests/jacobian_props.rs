@@ -33,8 +33,7 @@ fn attitude() -> impl Strategy<Value = Vector3<f64>> {
 }
 
 fn model1_state() -> impl Strategy<Value = model1::State> {
-    (v3(50.0), attitude(), v3(10.0), v3(0.1), v3(0.5))
-        .prop_map(|(p, q, v, bg, ba)| model1::state(&p, &q, &v, &bg, &ba))
+    (v3(50.0), attitude(), v3(10.0), v3(0.1), v3(0.5)).prop_map(|(p, q, v, bg, ba)| model1::state(&p, &q, &v, &bg, &ba))
 }
 
 fn imu() -> impl Strategy<Value = model1::ImuInput> {
