@@ -144,7 +144,8 @@ impl<D: Detector + ?Sized> OnlineDetector for WindowedOnline<'_, D> {
             }
         };
         let scores = self.detector.score(&series)?;
-        let score = scores.last().copied().ok_or_else(|| DetectError::Numerical { what: "empty score window".into() })?;
+        let score =
+            scores.last().copied().ok_or_else(|| DetectError::Numerical { what: "empty score window".into() })?;
         Ok(OnlineDecision { score, alarm: score > self.detector.threshold() })
     }
 
@@ -220,7 +221,9 @@ fn ratio(num: u64, den: u64) -> f64 {
 /// # Errors
 /// [`DetectError::Data`] when there are no labelled steps or no attacked step;
 /// [`DetectError::Numerical`] when a score is NaN.
-pub fn best_f1_threshold<'a>(pairs: impl IntoIterator<Item = (&'a [f64], &'a [bool])>) -> Result<(f64, f64), DetectError> {
+pub fn best_f1_threshold<'a>(
+    pairs: impl IntoIterator<Item = (&'a [f64], &'a [bool])>,
+) -> Result<(f64, f64), DetectError> {
     let mut points: Vec<(f64, bool)> = Vec::new();
     for (scores, labels) in pairs {
         points.extend(scores.iter().copied().zip(labels.iter().copied()));
@@ -241,7 +244,11 @@ pub fn best_f1_threshold<'a>(pairs: impl IntoIterator<Item = (&'a [f64], &'a [bo
     while i < points.len() {
         let s = points[i].0;
         while i < points.len() && points[i].0 == s {
-            if points[i].1 { tp += 1 } else { fp += 1 }
+            if points[i].1 {
+                tp += 1
+            } else {
+                fp += 1
+            }
             i += 1;
         }
         let f1 = ratio(2 * tp, 2 * tp + fp + (n_pos - tp));

@@ -53,7 +53,12 @@ impl ResidueSeries {
     /// [`ResidueError`] naming the step and field when lengths differ, time stamps are not
     /// strictly increasing, a value is not finite, or an `S_k` is not symmetric positive
     /// definite.
-    pub fn new(t: Vec<f64>, channels: Vec<String>, r: Vec<Vec<f64>>, s: Vec<DMatrix<f64>>) -> Result<Self, ResidueError> {
+    pub fn new(
+        t: Vec<f64>,
+        channels: Vec<String>,
+        r: Vec<Vec<f64>>,
+        s: Vec<DMatrix<f64>>,
+    ) -> Result<Self, ResidueError> {
         let m = channels.len();
         if m == 0 {
             return Err(ResidueError::Dim { what: "channels", expected: 1, got: 0 });
@@ -72,7 +77,12 @@ impl ResidueSeries {
                 return Err(ResidueError::StepDim { step_idx, what: "r_k", expected: m, got: r_k.len() });
             }
             if s_k.nrows() != m || s_k.ncols() != m {
-                return Err(ResidueError::StepDim { step_idx, what: "S_k", expected: m, got: s_k.nrows().max(s_k.ncols()) });
+                return Err(ResidueError::StepDim {
+                    step_idx,
+                    what: "S_k",
+                    expected: m,
+                    got: s_k.nrows().max(s_k.ncols()),
+                });
             }
             r_flat.extend_from_slice(r_k);
             // Row-major copy of S_k.
@@ -197,10 +207,10 @@ impl ResidueSeries {
         let idx = names
             .iter()
             .map(|name| {
-                self.channels
-                    .iter()
-                    .position(|c| c == name)
-                    .ok_or_else(|| ResidueError::UnknownChannel { name: (*name).to_owned(), available: self.channels.clone() })
+                self.channels.iter().position(|c| c == name).ok_or_else(|| ResidueError::UnknownChannel {
+                    name: (*name).to_owned(),
+                    available: self.channels.clone(),
+                })
             })
             .collect::<Result<Vec<_>, _>>()?;
         let (m, m_new, n) = (self.dim(), idx.len(), self.len());
@@ -376,7 +386,8 @@ mod tests {
         let e = series(vec![0.0], vec![vec![0.0]]).unwrap_err();
         assert!(matches!(e, ResidueError::StepDim { step_idx: 0, what: "r_k", .. }), "{e}");
         let bad_s = DMatrix::from_row_slice(2, 2, &[1.0, 2.0, 2.0, 1.0]);
-        let e = ResidueSeries::new(vec![0.0], vec!["a".into(), "b".into()], vec![vec![0.0, 0.0]], vec![bad_s]).unwrap_err();
+        let e =
+            ResidueSeries::new(vec![0.0], vec!["a".into(), "b".into()], vec![vec![0.0, 0.0]], vec![bad_s]).unwrap_err();
         assert!(matches!(e, ResidueError::NotPositiveDefinite { step_idx: 0 }), "{e}");
     }
 
