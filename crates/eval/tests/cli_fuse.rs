@@ -1,0 +1,105 @@
+//! End-to-end tests of `quadformer fuse` (alg:alg3 closed-loop scenarios): on the diagonal
+//! scenario with the NIS gate it writes the table, CSV and top-view plots, and the CSV shows the
+//! ordering the paper's figures show: with detection the attacked vehicle's tracking RMSE stays
+//! within `DETECTED_FACTOR` × the no-attack RMSE, without detection it exceeds
+//! `UNDETECTED_FACTOR` ×. Bad arguments give clear errors and exit code 1 or 2 (clap).
+
+#![allow(clippy::unwrap_used)]
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+/// Detected-case RMSE bound relative to the no-attack case (decision 023 measures 1.2–2.5×).
+const DETECTED_FACTOR: f64 = 4.0;
+/// Undetected-case RMSE lower bound relative to the no-attack case (decision 023: 13–29×).
+const UNDETECTED_FACTOR: f64 = 5.0;
+
+fn quadformer(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_quadformer")).args(args).output().unwrap()
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// `(case, detector, attacked, tracking_rmse_m, time_gps_excluded_s, detection_delay_s)` per row.
+fn read_rows(path: &Path) -> Vec<(String, String, bool, f64, f64, Option<f64>)> {
+    let mut rdr = csv::Reader::from_path(path).unwrap();
+    let h = rdr.headers().unwrap().clone();
+    let col = |name: &str| h.iter().position(|c| c == name).unwrap();
+    let (c_case, c_det, c_att, c_rmse, c_excl, c_delay) = (
+        col("case"),
+        col("detector"),
+        col("attacked"),
+        col("tracking_rmse_m"),
+        col("time_gps_excluded_s"),
+        col("detection_delay_s"),
+    );
+    rdr.records()
+        .map(|r| {
+            let r = r.unwrap();
+            (
+                r[c_case].to_owned(),
+                r[c_det].to_owned(),
+                &r[c_att] == "1",
+                r[c_rmse].parse().unwrap(),
+                r[c_excl].parse().unwrap(),
+                (!r[c_delay].is_empty()).then(|| r[c_delay].parse().unwrap()),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn fuse_diagonal_nis_orders_the_cases() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("fuse");
+    let o = quadformer(&["fuse", "--scenario", "diagonal", "--detector", "nis", "--latency-s", "1", "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let md = std::fs::read_to_string(out.join("scenarios.md")).unwrap();
+    assert!(md.contains("| diagonal | attack_detected | nis |"), "{md}");
+    for stem in ["diagonal-no_attack", "diagonal-attack_undetected", "diagonal-attack_detected-nis-lat1"] {
+        for ext in ["png", "svg"] {
+            let p = out.join("plots").join(format!("{stem}.{ext}"));
+            assert!(std::fs::metadata(&p).is_ok_and(|m| m.len() > 0), "missing {}", p.display());
+        }
+    }
+    let rows = read_rows(&out.join("scenarios.csv"));
+    assert_eq!(rows.len(), 3);
+    let rmse = |case: &str| rows.iter().find(|r| r.0 == case).unwrap().3;
+    let (clean, undetected, detected) = (rmse("no_attack"), rmse("attack_undetected"), rmse("attack_detected"));
+    assert!(detected <= DETECTED_FACTOR * clean, "detected {detected} vs clean {clean}");
+    assert!(undetected > UNDETECTED_FACTOR * clean, "undetected {undetected} vs clean {clean}");
+    let det = rows.iter().find(|r| r.0 == "attack_detected").unwrap();
+    assert_eq!(det.1, "nis");
+    assert!(det.2 && det.4 > 0.0 && det.5.is_some(), "{det:?}");
+    let undet = rows.iter().find(|r| r.0 == "attack_undetected").unwrap();
+    assert!(undet.4 == 0.0 && undet.5.is_none(), "{undet:?}");
+}
+
+#[test]
+fn fuse_rejects_bad_arguments() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o");
+    let o = quadformer(&["fuse", "--scenario", "circle", "--out", s(&out)]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("invalid value 'circle'"), "{}", stderr(&o));
+
+    let o = quadformer(&["fuse", "--scenario", "square", "--latency-s=-1", "--out", s(&out)]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("--latency-s must be finite and non-negative"), "{}", stderr(&o));
+
+    let o = quadformer(&["fuse", "--scenario", "square", "--model", s(dir.path()), "--out", s(&out)]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("--model is not used by --detector nis"), "{}", stderr(&o));
+
+    let missing = dir.path().join("no-model");
+    let o = quadformer(&["fuse", "--scenario", "square", "--detector", "cusum", "--model", s(&missing), "--out", s(&out)]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("no-model"), "{}", stderr(&o));
+    assert!(!out.join("scenarios.csv").exists());
+}
