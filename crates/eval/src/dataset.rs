@@ -300,7 +300,7 @@ impl DatasetConfig {
                 return bad("steps", format!("{split} needs at least one step"));
             }
         }
-        if !(self.residue_rate_hz() > 0.0) {
+        if self.residue_rate_hz() <= 0.0 {
             return bad("sim", "the residue stream (GPS or VO) rate must be positive".to_owned());
         }
         self.attack.check().map_err(DatasetError::AttackConfig)?;
@@ -522,7 +522,7 @@ impl Dataset {
     #[must_use]
     pub fn labelled_train_indices(&self, fraction: f64) -> Vec<usize> {
         let n = self.train.len();
-        if !(fraction > 0.0) || n == 0 {
+        if fraction.is_nan() || fraction <= 0.0 || n == 0 {
             return Vec::new();
         }
         #[allow(clippy::cast_precision_loss, clippy::cast_possible_truncation, clippy::cast_sign_loss)]
