@@ -552,7 +552,8 @@ impl Dataset {
                 })
             })
             .collect::<Result<Vec<_>>>()?;
-        LabelledResidues::new(series).map_err(|source| DatasetError::Residue { split: Split::Train, index: 0, source })
+        let split = flights.first().map_or(Split::Train, |f| f.meta.split);
+        LabelledResidues::new(series).map_err(|source| DatasetError::Residue { split, index: 0, source })
     }
 
     /// The training split with labels kept for the configured `labelled_fraction` of flights.
