@@ -128,10 +128,7 @@ pub fn markdown(rows: &[ScenarioRow]) -> String {
     let mut attacked_idx: Vec<usize> = Vec::new();
     for (i, r) in rows.iter().enumerate() {
         // The attacked vehicle (in the no-attack case: the vehicle that is attacked in the others).
-        let target = rows
-            .iter()
-            .find(|o| o.scenario == r.scenario && o.attacked)
-            .map_or(0, |o| o.vehicle);
+        let target = rows.iter().find(|o| o.scenario == r.scenario && o.attacked).map_or(0, |o| o.vehicle);
         if r.vehicle == target {
             attacked_idx.push(i);
         }

@@ -98,7 +98,8 @@ fn fuse_rejects_bad_arguments() {
     assert!(stderr(&o).contains("--model is not used by --detector nis"), "{}", stderr(&o));
 
     let missing = dir.path().join("no-model");
-    let o = quadformer(&["fuse", "--scenario", "square", "--detector", "cusum", "--model", s(&missing), "--out", s(&out)]);
+    let o =
+        quadformer(&["fuse", "--scenario", "square", "--detector", "cusum", "--model", s(&missing), "--out", s(&out)]);
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("no-model"), "{}", stderr(&o));
     assert!(!out.join("scenarios.csv").exists());

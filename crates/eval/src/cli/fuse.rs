@@ -195,15 +195,21 @@ pub fn make_detector(
         }
         return Ok(FusionDetector::Batch(load_detector(dir, &manifest)?));
     }
-    let cfg = DatasetConfig { seed, ..DatasetConfig::quick(ModelKind::ModelII, NoiseShape::Gaussian, AttackKind::Persistent) };
+    let cfg = DatasetConfig {
+        seed,
+        ..DatasetConfig::quick(ModelKind::ModelII, NoiseShape::Gaussian, AttackKind::Persistent)
+    };
     let cell = cfg.cell_name();
     let valid_cfg = cfg.check().map_err(|e| CliError::Run(format!("dataset {cell}: {e}")))?;
-    let (data, outcome) = load_or_build(&valid_cfg, cache).map_err(|e| CliError::Run(format!("dataset {cell}: {e}")))?;
+    let (data, outcome) =
+        load_or_build(&valid_cfg, cache).map_err(|e| CliError::Run(format!("dataset {cell}: {e}")))?;
     eprintln!("dataset {cell}: {outcome:?}");
     let run = |e: &dyn std::fmt::Display| CliError::Run(format!("dataset {cell}, GPS channels: {e}"));
     let (train, valid) = (data.train().map_err(|e| run(&e))?, data.valid().map_err(|e| run(&e))?);
-    let (train, valid) =
-        (train.select_channels(&GPS_CHANNELS).map_err(|e| run(&e))?, valid.select_channels(&GPS_CHANNELS).map_err(|e| run(&e))?);
+    let (train, valid) = (
+        train.select_channels(&GPS_CHANNELS).map_err(|e| run(&e))?,
+        valid.select_channels(&GPS_CHANNELS).map_err(|e| run(&e))?,
+    );
     let cfgs = MethodConfigs::quick().seeded(seed);
     let fitted = fit(method, &cfgs, &train, &valid).map_err(|e| run(&e))?;
     eprintln!(
