@@ -116,7 +116,8 @@ fn no_attack_rmse(rows: &[ScenarioRow], row: &ScenarioRow) -> Option<f64> {
 /// Markdown table of the attacked vehicle of every case (all vehicles of the formation are in
 /// the CSV): tracking RMSE and its ratio to the no-attack case, maximum deviation, estimate
 /// RMSE, time under attack, time GPS excluded (and outside the attack), detection and exclusion
-/// delays, formation-shape RMSE.
+/// delays, formation-shape RMSE. The latency is shown for the detected case only (it does not
+/// affect the others).
 #[must_use]
 pub fn markdown(rows: &[ScenarioRow]) -> String {
     let mut s = String::from(
@@ -143,7 +144,7 @@ pub fn markdown(rows: &[ScenarioRow]) -> String {
             r.scenario.name(),
             r.case.name(),
             r.detector,
-            r.latency_s,
+            if r.case == Case::AttackDetected { r.latency_s.to_string() } else { "–".to_owned() },
             m.tracking_rmse_m,
             ratio.map_or_else(|| "–".to_owned(), |x| format!("{x:.1}")),
             m.tracking_max_m,

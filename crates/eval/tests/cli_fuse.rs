@@ -82,6 +82,21 @@ fn fuse_diagonal_nis_orders_the_cases() {
 }
 
 #[test]
+fn fuse_square_cusum_fitted_on_quick_cell() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("fuse");
+    let o = quadformer(&["fuse", "--scenario", "square", "--detector", "cusum", "--latency-s", "0", "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("fitted CUSUM on model2-gaussian-persistent"), "{}", stderr(&o));
+    let rows = read_rows(&out.join("scenarios.csv"));
+    let clean = rows.iter().find(|r| r.0 == "no_attack").unwrap().3;
+    let det = rows.iter().find(|r| r.0 == "attack_detected").unwrap();
+    assert_eq!(det.1, "cusum");
+    assert!(det.3 <= DETECTED_FACTOR * clean && det.4 > 0.0, "{det:?} vs clean {clean}");
+    assert!(out.join("datasets").is_dir());
+}
+
+#[test]
 fn fuse_rejects_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("o");
