@@ -190,3 +190,57 @@ pub fn plot_case(dir: &Path, result: &CaseResult, detector: &str, latency_s: f64
     }
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use resilient_fusion::scenario::FlightMetrics;
+
+    use super::*;
+
+    fn row(case: Case, rmse: f64, attacked: bool) -> ScenarioRow {
+        ScenarioRow {
+            scenario: Scenario::Square,
+            case,
+            detector: if case == Case::AttackDetected { "nis" } else { "none" }.to_owned(),
+            latency_s: 1.0,
+            vehicle: 0,
+            attacked,
+            metrics: FlightMetrics {
+                tracking_rmse_m: rmse,
+                tracking_max_m: 2.0 * rmse,
+                estimate_rmse_m: rmse,
+                time_under_attack_s: if attacked { 10.0 } else { 0.0 },
+                time_gps_excluded_s: 0.0,
+                excluded_outside_attack_s: 0.0,
+                detection_delay_s: attacked.then_some(0.1),
+                exclusion_delay_s: None,
+            },
+            formation: None,
+        }
+    }
+
+    #[test]
+    fn csv_has_one_field_per_header_column() {
+        let rows = [row(Case::NoAttack, 0.5, false), row(Case::AttackDetected, 1.0, true)];
+        let text = csv(&rows);
+        let n = CSV_HEADER.split(',').count();
+        assert_eq!(text.lines().count(), 3);
+        for line in text.lines() {
+            assert_eq!(line.split(',').count(), n, "{line}");
+        }
+        assert!(text.lines().nth(2).is_some_and(|l| l.starts_with("square,attack_detected,nis,1,0,1,1.000000")));
+    }
+
+    #[test]
+    fn markdown_ratio_is_relative_to_no_attack() {
+        let rows = [
+            row(Case::NoAttack, 0.5, false),
+            row(Case::AttackUndetected, 5.0, true),
+            row(Case::AttackDetected, 1.0, true),
+        ];
+        let md = markdown(&rows);
+        assert!(md.contains("| square | no_attack | none | – | 0.50 | 1.0 |"), "{md}");
+        assert!(md.contains("| square | attack_undetected | none | – | 5.00 | 10.0 |"), "{md}");
+        assert!(md.contains("| square | attack_detected | nis | 1 | 1.00 | 2.0 |"), "{md}");
+    }
+}
