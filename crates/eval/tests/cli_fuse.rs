@@ -96,6 +96,41 @@ fn fuse_square_cusum_fitted_on_quick_cell() {
     assert!(out.join("datasets").is_dir());
 }
 
+/// A `quadformer train` model directory on the Model II stacked residue (VO + GPS channels):
+/// its channels become the fusion's detector channels.
+#[test]
+fn fuse_with_a_trained_model_directory() {
+    let dir = tempfile::tempdir().unwrap();
+    let (data, model, out) = (dir.path().join("data"), dir.path().join("cusum"), dir.path().join("fuse"));
+    let o = quadformer(&["dataset", "--cell", "m2-gaussian-a2", "--quick", "--out", s(&data)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (train, valid) = (data.join("train"), data.join("valid"));
+    let o = quadformer(&[
+        "train",
+        "--method",
+        "cusum",
+        "--quick",
+        "--train",
+        s(&train),
+        "--valid",
+        s(&valid),
+        "--out",
+        s(&model),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o =
+        quadformer(&["fuse", "--scenario", "diagonal", "--detector", "cusum", "--model", s(&model), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rows = read_rows(&out.join("scenarios.csv"));
+    let det = rows.iter().find(|r| r.0 == "attack_detected").unwrap();
+    assert!(det.1 == "cusum" && det.4 > 0.0 && det.5.is_some(), "{det:?}");
+
+    let o =
+        quadformer(&["fuse", "--scenario", "diagonal", "--detector", "chi2", "--model", s(&model), "--out", s(&out)]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("the model is CUSUM, but --detector is chi2"), "{}", stderr(&o));
+}
+
 #[test]
 fn fuse_rejects_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
