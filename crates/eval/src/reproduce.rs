@@ -125,14 +125,18 @@ impl MatrixConfig {
         }
     }
 
-    /// Reads a TOML file over the defaults of `base`.
+    /// Reads a TOML file whose keys override `base` (nested tables key by key, see
+    /// [`crate::io::merge_over`]), so a file names only what it changes.
     ///
     /// # Errors
     /// [`ReproduceError::Config`] naming the file and the offending field.
-    pub fn from_toml_file(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ReproduceError::Config(format!("{}: cannot read: {e}", path.display())))?;
-        toml::from_str(&text).map_err(|e| ReproduceError::Config(format!("{}: {e}", path.display())))
+    pub fn from_toml_file(path: &Path, base: &Self) -> Result<Self> {
+        let err = |msg: String| ReproduceError::Config(format!("{}: {msg}", path.display()));
+        let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
+        let user: toml::Table = text.parse().map_err(|e: toml::de::Error| err(e.to_string()))?;
+        let mut merged = toml::Table::try_from(base).map_err(|e| err(e.to_string()))?;
+        crate::io::merge_over(&mut merged, user);
+        merged.try_into().map_err(|e: toml::de::Error| err(e.message().trim().to_owned()))
     }
 }
 
@@ -659,5 +663,34 @@ fn write_report(
         for (name, r) in arch {
             let _ = writeln!(s, "| {name} | {:.3} | {:.3} | {:.3} | {:.3} |", r.precision, r.recall, r.f1, r.roc_auc);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn partial_config_file_overrides_only_its_keys() {
+        let dir = std::env::temp_dir().join(format!("qf-matrix-cfg-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("m.toml");
+        std::fs::write(&path, "labelled_fraction = 1.0\n[methods.quadformer.train]\nepochs = 7\n").unwrap();
+        let c = MatrixConfig::from_toml_file(&path, &MatrixConfig::default()).unwrap();
+        assert_eq!(c.labelled_fraction, 1.0);
+        assert_eq!(c.methods.quadformer.train.epochs, 7);
+        assert_eq!(c.methods.quadformer.window, MatrixConfig::default().methods.quadformer.window);
+        std::fs::write(&path, "[methods.quadformer.train]\nepoch = 7\n").unwrap();
+        let e = MatrixConfig::from_toml_file(&path, &MatrixConfig::default()).unwrap_err().to_string();
+        assert!(e.contains("m.toml") && e.contains("epoch"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn cells_parse_from_their_slugs() {
+        for c in table_cells() {
+            assert_eq!(parse_cell(&c.slug()).unwrap(), c);
+        }
+        assert!(parse_cell("m3-laplace-a1").is_err());
     }
 }

@@ -28,7 +28,8 @@ pub struct Args {
     /// Output directory (datasets and finished runs are cached inside it).
     #[arg(long, value_name = "DIR", default_value = "results")]
     pub out: PathBuf,
-    /// Experiment configuration (TOML; every field optional, see docs/reproduce.md).
+    /// Experiment configuration (TOML; every key optional, merged over the defaults of the
+    /// chosen mode; see docs/cli.md).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Hide the progress bar.
@@ -42,11 +43,11 @@ pub struct Args {
 /// [`CliError::Input`] for a bad option or config; [`CliError::Run`] for a failing stage.
 pub fn run(args: &Args) -> Result<(), CliError> {
     let input = |msg: String| CliError::Input { path: args.out.clone(), msg };
-    let config = match (&args.config, args.quick) {
-        (Some(path), _) => MatrixConfig::from_toml_file(path)
+    let base = if args.quick { MatrixConfig::quick() } else { MatrixConfig::default() };
+    let config = match &args.config {
+        Some(path) => MatrixConfig::from_toml_file(path, &base)
             .map_err(|e| CliError::Config { path: path.clone(), msg: e.to_string() })?,
-        (None, true) => MatrixConfig::quick(),
-        (None, false) => MatrixConfig::default(),
+        None => base,
     };
     let cells = if args.cells.is_empty() {
         table_cells()

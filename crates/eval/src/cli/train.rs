@@ -210,23 +210,10 @@ pub fn method_configs(path: Option<&Path>, quick: bool, seed: u64) -> Result<Met
     let config_err = |msg: String| CliError::Config { path: path.to_owned(), msg };
     let user: toml::Table = text.parse().map_err(|e: toml::de::Error| config_err(e.to_string()))?;
     let mut merged = toml::Table::try_from(&base).map_err(|e| config_err(e.to_string()))?;
-    merge_over(&mut merged, user);
+    crate::io::merge_over(&mut merged, user);
     let cfgs: MethodConfigs =
         merged.try_into().map_err(|e: toml::de::Error| config_err(e.message().trim().to_owned()))?;
     Ok(cfgs.seeded(seed))
-}
-
-/// Overwrites `base` with the keys of `user`, recursing into tables present in both; keys
-/// unknown to `base` are kept so that deserialisation rejects them by name.
-fn merge_over(base: &mut toml::Table, user: toml::Table) {
-    for (key, uv) in user {
-        match (base.get_mut(&key), uv) {
-            (Some(toml::Value::Table(bt)), toml::Value::Table(ut)) => merge_over(bt, ut),
-            (_, uv) => {
-                base.insert(key, uv);
-            }
-        }
-    }
 }
 
 /// Runs `quadformer train`.

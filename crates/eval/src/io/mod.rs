@@ -31,6 +31,7 @@ mod flight_dir;
 mod residues;
 mod streams;
 mod table;
+mod toml_merge;
 
 pub use atomic::{Overwrite, write_dir_atomic, write_file_atomic, write_text_atomic};
 pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, labels_at, read_attack, write_attack};
@@ -45,3 +46,4 @@ pub use streams::{
     ATTITUDE_COLUMNS, GPS_COLUMNS, GPS_GEODETIC_COLUMNS, IMU_COLUMNS, TRUTH_COLUMNS, VO_COLUMNS, read_attitude,
     read_gps, read_imu, read_truth, read_vo, write_attitude, write_gps, write_imu, write_truth, write_vo,
 };
+pub use toml_merge::merge_over;
