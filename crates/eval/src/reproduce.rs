@@ -24,9 +24,9 @@ use uav_dynamics::noise::NoiseShape;
 
 use crate::dataset::{Dataset, DatasetConfig, SplitSteps, load_or_build};
 use crate::io::write_text_atomic;
-use crate::metrics::{FlightOutcome, MeanStd, RocCurve, evaluate};
+use crate::metrics::{MeanStd, RocCurve};
 use crate::plot::{StatisticTrace, SweepSeries, f1_amplitude_plot, roc_plot, statistic_plot};
-use crate::runner::{Method, MethodConfigs, RunError, RunRecord, Splits, fit, run_one, score_split};
+use crate::runner::{Method, MethodConfigs, RunError, RunRecord, Splits, evaluate_split, fit, run_one, score_split};
 use crate::table::{AttackModel, Cell, NoiseModel, RunResult, UavModel, write_outputs};
 
 /// Errors of `reproduce-tables`, each naming the stage and cell.
@@ -443,7 +443,7 @@ pub fn amplitude_sweep(opts: &Options) -> Result<(Vec<SweepPoint>, Vec<ModeRow>,
                 .quadformer
                 .fit(&splits.train, &splits.valid)
                 .map_err(|e| RunError::Fit { method: m.name(), msg: e.to_string() })?;
-            modes = score_modes(&qf, &splits.test)?;
+            modes = score_modes(&qf, &splits.test, cell)?;
             fitted.push((m, Box::new(qf)));
         } else {
             fitted.push((m, fit(m, &cfgs, &splits.train, &splits.valid)?.detector));
@@ -459,22 +459,7 @@ pub fn amplitude_sweep(opts: &Options) -> Result<(Vec<SweepPoint>, Vec<ModeRow>,
         let test = sweep_data.test().map_err(err)?;
         for (method, det) in &fitted {
             let scored = score_split(*method, det.as_ref(), &test)?;
-            let outcomes: Vec<FlightOutcome<'_>> = test
-                .flights()
-                .iter()
-                .zip(&scored.scores)
-                .zip(&scored.alarms)
-                .map(|((f, s), a)| FlightOutcome {
-                    t: f.series().t(),
-                    scores: s,
-                    alarms: a,
-                    labels: f.labels().unwrap_or_default(),
-                })
-                .collect();
-            let e = evaluate(&outcomes).map_err(|source| ReproduceError::Metrics {
-                what: format!("sweep {sigma} sigma, {}", method.name()),
-                source,
-            })?;
+            let e = evaluate_split(&test, &scored.scores, &scored.alarms, method.name(), cell)?;
             points.push(SweepPoint { method: method.name().to_owned(), sigma, f1: e.f1() });
         }
     }
@@ -516,7 +501,7 @@ pub struct ModeRow {
 
 /// Every score mode of a fitted QUADFormer on the test split, each at its own validation
 /// threshold (the ablation of Algorithm 2's criterion against the alternatives).
-fn score_modes(qf: &QuadFormerDetector, test: &LabelledResidues) -> Result<Vec<ModeRow>> {
+fn score_modes(qf: &QuadFormerDetector, test: &LabelledResidues, cell: Cell) -> Result<Vec<ModeRow>> {
     let mut per_mode: Vec<(quadformer_model::ModeResult, Vec<Vec<f64>>)> = Vec::new();
     for f in test.flights() {
         let by_mode =
@@ -532,20 +517,7 @@ fn score_modes(qf: &QuadFormerDetector, test: &LabelledResidues) -> Result<Vec<M
     let mut rows = Vec::new();
     for (res, scores) in &per_mode {
         let alarms: Vec<Vec<bool>> = scores.iter().map(|s| s.iter().map(|&v| v > res.threshold).collect()).collect();
-        let outcomes: Vec<FlightOutcome<'_>> = test
-            .flights()
-            .iter()
-            .zip(scores)
-            .zip(&alarms)
-            .map(|((f, s), a)| FlightOutcome {
-                t: f.series().t(),
-                scores: s,
-                alarms: a,
-                labels: f.labels().unwrap_or_default(),
-            })
-            .collect();
-        let e = evaluate(&outcomes)
-            .map_err(|source| ReproduceError::Metrics { what: format!("score mode {}", res.mode.name()), source })?;
+        let e = evaluate_split(test, scores, &alarms, "QUADFormer", cell)?;
         rows.push(ModeRow {
             mode: res.mode.name(),
             chosen: res.mode == chosen,

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use crate::io::write_text_atomic;
-use crate::metrics::{FlightOutcome, evaluate};
+use crate::metrics::{Evaluation, FlightOutcome, evaluate};
 use crate::table::{Cell, RunResult};
 
 /// Training epochs of every learning method in the full run (decision 004).
@@ -350,13 +350,7 @@ pub fn run_record(
     scored: &ScoredSplit,
     train_s: f64,
 ) -> Result<RunRecord> {
-    let mut outcomes = Vec::with_capacity(test.flights().len());
-    for (flight_idx, ((f, scores), alarms)) in test.flights().iter().zip(&scored.scores).zip(&scored.alarms).enumerate()
-    {
-        let labels = f.labels().ok_or(RunError::UnlabelledTest { flight_idx })?;
-        outcomes.push(FlightOutcome { t: f.series().t(), scores, alarms, labels });
-    }
-    let e = evaluate(&outcomes).map_err(|source| RunError::Metrics { method: method.name(), cell, source })?;
+    let e = evaluate_split(test, &scored.scores, &scored.alarms, method.name(), cell)?;
     let result = RunResult {
         model: cell.model,
         noise: cell.noise,
@@ -386,6 +380,27 @@ pub fn run_record(
         roc.push((last.fpr, last.tpr));
     }
     Ok(RunRecord { key, result, roc })
+}
+
+/// Evaluates per-flight scores and alarms (one vector per flight of `test`) against the labels
+/// of `test`: every metric of [`evaluate`].
+///
+/// # Errors
+/// [`RunError::UnlabelledTest`] if a test flight has no labels; [`RunError::Metrics`] naming the
+/// method and cell.
+pub fn evaluate_split(
+    test: &LabelledResidues,
+    scores: &[Vec<f64>],
+    alarms: &[Vec<bool>],
+    method: &'static str,
+    cell: Cell,
+) -> Result<Evaluation> {
+    let mut outcomes = Vec::with_capacity(test.flights().len());
+    for (flight_idx, ((f, scores), alarms)) in test.flights().iter().zip(scores).zip(alarms).enumerate() {
+        let labels = f.labels().ok_or(RunError::UnlabelledTest { flight_idx })?;
+        outcomes.push(FlightOutcome { t: f.series().t(), scores, alarms, labels });
+    }
+    evaluate(&outcomes).map_err(|source| RunError::Metrics { method, cell, source })
 }
 
 /// The cache key of a run: SHA-256 over the crate version, the dataset key, the method and its
