@@ -215,11 +215,7 @@ impl<const N: usize> Ekf<N> {
         r_cov: &SMatrix<f64, M, M>,
         t: f64,
     ) -> Result<Innovation<M>, FilterError> {
-        let mut s_k = h * self.p * h.transpose() + r_cov;
-        symmetrise(&mut s_k);
-        let chol =
-            Cholesky::new(s_k).ok_or(FilterError::NotPositiveDefinite { t, what: "innovation covariance S_k" })?;
-        let nis = r_k.dot(&chol.solve(r_k));
+        let (s_k, _, nis) = factor_innovation(r_k, h, &(self.p * h.transpose()), r_cov, t)?;
         if !nis.is_finite() || !r_k.iter().all(|v| v.is_finite()) {
             return Err(FilterError::NonFiniteState { t, what: "innovation" });
         }
@@ -240,14 +236,10 @@ impl<const N: usize> Ekf<N> {
         r_cov: &SMatrix<f64, M, M>,
         t: f64,
     ) -> Result<Innovation<M>, FilterError> {
-        let mut s_k = h * self.p * h.transpose() + r_cov;
-        symmetrise(&mut s_k);
-        let chol =
-            Cholesky::new(s_k).ok_or(FilterError::NotPositiveDefinite { t, what: "innovation covariance S_k" })?;
         let ph_t = self.p * h.transpose();
+        let (s_k, chol, nis) = factor_innovation(r_k, h, &ph_t, r_cov, t)?;
         // eq:ekf_update: K_k = P Hᵀ S_k⁻¹, computed as (S_k⁻¹ H P)ᵀ with P and S_k symmetric.
         let k_gain: SMatrix<f64, N, M> = chol.solve(&ph_t.transpose()).transpose();
-        let nis = r_k.dot(&chol.solve(r_k));
         // eq:ekf_update: x̂_{k|k} = x̂_{k|k−1} + K_k r_k
         let x_post = self.x + k_gain * r_k;
         let p_post = match self.cov_update {
@@ -287,6 +279,23 @@ impl<const N: usize> Ekf<N> {
         }
         Ok(Innovation { r_k: *r_k, s_k, nis })
     }
+}
+
+/// `S_k = H P Hᵀ + R` from `ph_t = P Hᵀ` (shared with the gain), its Cholesky factor and the
+/// NIS `r_kᵀ S_k⁻¹ r_k`, as used by both [`Ekf::innovation`] and [`Ekf::update`].
+#[allow(clippy::type_complexity)]
+fn factor_innovation<const N: usize, const M: usize>(
+    r_k: &SVector<f64, M>,
+    h: &SMatrix<f64, M, N>,
+    ph_t: &SMatrix<f64, N, M>,
+    r_cov: &SMatrix<f64, M, M>,
+    t: f64,
+) -> Result<(SMatrix<f64, M, M>, Cholesky<f64, nalgebra::Const<M>>, f64), FilterError> {
+    let mut s_k = h * ph_t + r_cov;
+    symmetrise(&mut s_k);
+    let chol = Cholesky::new(s_k).ok_or(FilterError::NotPositiveDefinite { t, what: "innovation covariance S_k" })?;
+    let nis = r_k.dot(&chol.solve(r_k));
+    Ok((s_k, chol, nis))
 }
 
 /// The innovation of a runtime-sized update ([`Ekf::update_dyn`]).
