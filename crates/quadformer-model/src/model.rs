@@ -47,6 +47,18 @@ pub enum Prior {
     Gaussian,
 }
 
+/// What the classification head reads at every step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum ClassInput {
+    /// The reconstruction `R̂` (`m` values per step), as the paper writes it (sec:attack_detector:
+    /// `Ŷ` is obtained by passing `R̂` through the classification head).
+    #[default]
+    Reconstruction,
+    /// The last layer's hidden state (`d_model` values per step), the representation `R̂` is
+    /// read from (docs/decisions/043-classification-head-input.md).
+    Hidden,
+}
+
 /// Architecture of the network.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -73,6 +85,11 @@ pub struct NetConfig {
     /// Dynamic Context Mapping (cross-layer keys, eq:cross_layer_attention); `false` = every
     /// layer uses its own keys (ablation "DCM off"). Default true.
     pub dcm: bool,
+    /// Input of the classification head. Default [`ClassInput::Hidden`]: chosen on validation
+    /// (docs/decisions/043-classification-head-input.md); a checkpoint without the field reads
+    /// as [`ClassInput::Reconstruction`], the only head of earlier versions.
+    #[serde(default)]
+    pub class_input: ClassInput,
 }
 
 impl Default for NetConfig {
@@ -87,6 +104,7 @@ impl Default for NetConfig {
             gamma_init: 0.1,
             prior: Prior::Tpc,
             dcm: true,
+            class_input: ClassInput::Hidden,
         }
     }
 }
@@ -320,7 +338,11 @@ impl QuadFormerNet {
             });
         }
         let recon = candle_nn::linear(d, dim, vb.pp("recon"))?;
-        let class1 = candle_nn::linear(dim, cfg.d_class, vb.pp("class1"))?;
+        let class_in = match cfg.class_input {
+            ClassInput::Reconstruction => dim,
+            ClassInput::Hidden => d,
+        };
+        let class1 = candle_nn::linear(class_in, cfg.d_class, vb.pp("class1"))?;
         let class2 = candle_nn::linear(cfg.d_class, 1, vb.pp("class2"))?;
         init_vars_seeded(&varmap, seed)?;
         // ln γ is rank 2 and was overwritten by the generic rule: reset it to its constant.
@@ -477,7 +499,11 @@ impl QuadFormerNet {
             k_prev = Some(k);
         }
         let r_hat = self.recon.forward(&h)?;
-        let logits = self.class2.forward(&self.class1.forward(&r_hat)?.gelu_erf()?)?.reshape((b, l))?;
+        let class_in = match self.cfg.class_input {
+            ClassInput::Reconstruction => &r_hat,
+            ClassInput::Hidden => &h,
+        };
+        let logits = self.class2.forward(&self.class1.forward(class_in)?.gelu_erf()?)?.reshape((b, l))?;
         Ok(Output { r_hat: r_hat.reshape((b, l, m))?, logits, prior, attn })
     }
 

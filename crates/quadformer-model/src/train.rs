@@ -60,6 +60,12 @@ pub struct TrainConfig {
     pub patience: usize,
     /// At most this many (randomly chosen) windows per epoch; `None` = all. Default `None`.
     pub max_windows_per_epoch: Option<usize>,
+    /// Share of each epoch's windows drawn from the windows with labels, when the training set
+    /// mixes labelled and unlabelled flights (semi-supervision); labelled windows are repeated
+    /// across the epoch if there are too few. `None`: windows are drawn uniformly, so the
+    /// labelled share is the labelled fraction of the data. Default `None`.
+    #[serde(default)]
+    pub labelled_share: Option<f64>,
     /// Seed of the shuffling generator. Default 0.
     pub seed: u64,
     /// Show a progress bar with the loss per epoch on stderr. Default true.
@@ -76,6 +82,7 @@ impl Default for TrainConfig {
             lr_decay: 0.5,
             patience: 3,
             max_windows_per_epoch: None,
+            labelled_share: None,
             seed: 0,
             progress: true,
         }
@@ -103,6 +110,11 @@ impl TrainConfig {
         }
         if !(self.lr_decay.is_finite() && self.lr_decay > 0.0 && self.lr_decay <= 1.0) {
             return bad("train.lr_decay", "must be in (0, 1]");
+        }
+        if let Some(share) = self.labelled_share
+            && !(0.0..=1.0).contains(&share)
+        {
+            return bad("train.labelled_share", "must be in [0, 1]");
         }
         Ok(())
     }
@@ -174,6 +186,30 @@ fn shuffle(idx: &mut [usize], rng: &mut StdRng) {
     }
 }
 
+/// The `per_epoch` windows of one epoch, in training order: a uniform sample without
+/// replacement, or, with a labelled share `ρ` and both kinds of window present, `⌈ρ·n⌉`
+/// labelled windows (each used once before any repeats) and the rest unlabelled ones.
+fn epoch_windows(windows: &Windows, per_epoch: usize, share: Option<f64>, rng: &mut StdRng) -> Vec<usize> {
+    let (mut lab, mut unlab): (Vec<usize>, Vec<usize>) = (0..windows.len()).partition(|&w| windows.is_labelled(w));
+    let Some(share) = share.filter(|_| !lab.is_empty() && !unlab.is_empty()) else {
+        let mut idx: Vec<usize> = (0..windows.len()).collect();
+        shuffle(&mut idx, rng);
+        idx.truncate(per_epoch);
+        return idx;
+    };
+    let n_lab = ((share * per_epoch as f64).ceil() as usize).min(per_epoch);
+    let n_unlab = (per_epoch - n_lab).min(unlab.len());
+    let mut idx = Vec::with_capacity(n_lab + n_unlab);
+    while idx.len() < n_lab {
+        shuffle(&mut lab, rng);
+        idx.extend(lab.iter().take(n_lab - idx.len()));
+    }
+    shuffle(&mut unlab, rng);
+    idx.extend(&unlab[..n_unlab]);
+    shuffle(&mut idx, rng);
+    idx
+}
+
 /// Trains the variables of `varmap` through `model` on `windows` (module docs for the loop),
 /// calling `valid(model)` after every epoch; lower validation metric is better.
 ///
@@ -222,9 +258,7 @@ pub fn train<M: TrainableModel + ?Sized>(
     let mut lr = cfg.lr;
     for epoch in 1..=cfg.epochs {
         let mut rng = StdRng::seed_from_u64(cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(epoch as u64));
-        let mut idx: Vec<usize> = (0..windows.len()).collect();
-        shuffle(&mut idx, &mut rng);
-        idx.truncate(per_epoch);
+        let idx = epoch_windows(windows, per_epoch, cfg.labelled_share, &mut rng);
         let t0 = Instant::now();
         let mut loss_sum = 0.0;
         for (b, chunk) in idx.chunks(cfg.batch_size).enumerate() {

@@ -312,6 +312,12 @@ impl Windows {
         &self.mask
     }
 
+    /// Whether window `w` has at least one step with a known label.
+    pub fn is_labelled(&self, w: usize) -> bool {
+        let l = self.len;
+        self.mask.get(w * l..(w + 1) * l).is_some_and(|m| m.iter().any(|&v| v > 0.0))
+    }
+
     /// Number of window steps with a known label.
     pub fn n_labelled(&self) -> usize {
         self.mask.iter().filter(|&&v| v > 0.0).count()
