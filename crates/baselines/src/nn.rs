@@ -47,7 +47,9 @@ pub struct NeuralConfig {
     /// Stride between windows when scoring a series (each step's score is the mean over its
     /// covering windows). Default 50 (`l/2`: every step seen twice, half the cost of stride 25).
     pub score_stride: usize,
-    /// Training loop. Default `quadformer_model::TrainConfig::default()`.
+    /// Training loop. Default: up to 30 epochs at learning rate 3·10⁻³ without decay, stopped
+    /// after 4 epochs without a better validation BCE, i.e. trained to convergence
+    /// (docs/decisions/053-baseline-training-budgets.md).
     pub train: TrainConfig,
     /// Channels of the CNN's hidden layers, or the LSTM's hidden size. Default 32 for the CNN,
     /// 64 for the LSTM (rust-stack.md §3 probes).
@@ -73,7 +75,7 @@ impl Default for CnnConfig {
         Self(NeuralConfig {
             window: WindowConfig::default(),
             score_stride: 50,
-            train: TrainConfig::default(),
+            train: TrainConfig { epochs: 30, lr: 3e-3, lr_decay: 1.0, patience: 4, ..TrainConfig::default() },
             hidden: 32,
             kernel: 5,
             seed: 0,
