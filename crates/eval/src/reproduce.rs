@@ -434,33 +434,39 @@ pub fn amplitude_sweep(opts: &Options) -> Result<(Vec<SweepPoint>, Vec<ModeRow>,
     let data = load_cell(cell, 0, opts)?;
     let splits = CellSplits::from_dataset(cell, &data, &opts.config, opts.config.labelled_fraction)?;
     let cfgs = opts.config.methods.seeded(0);
-    let mut modes = Vec::new();
-    let mut fitted: Vec<(Method, Box<dyn Detector>)> = Vec::new();
-    for &m in opts.methods.iter().filter(|m| applicable(**m, cell, &opts.config)) {
+    let methods: Vec<Method> = opts.methods.iter().copied().filter(|m| applicable(*m, cell, &opts.config)).collect();
+    // Fit every method and build every amplitude's dataset, in parallel.
+    let fits = methods.par_iter().map(|&m| -> Result<(Method, Box<dyn Detector>, Vec<ModeRow>)> {
         if m == Method::QuadFormer {
             // Fitted as its concrete type so that every score mode can be evaluated on test.
             let qf = cfgs
                 .quadformer
                 .fit(&splits.train, &splits.valid)
                 .map_err(|e| RunError::Fit { method: m.name(), msg: e.to_string() })?;
-            modes = score_modes(&qf, &splits.test, cell)?;
-            fitted.push((m, Box::new(qf)));
+            let modes = score_modes(&qf, &splits.test, cell)?;
+            Ok((m, Box::new(qf), modes))
         } else {
-            fitted.push((m, fit(m, &cfgs, &splits.train, &splits.valid)?.detector));
+            Ok((m, fit(m, &cfgs, &splits.train, &splits.valid)?.detector, Vec::new()))
         }
-    }
-    let mut points = Vec::new();
-    for &sigma in &opts.config.sweep_sigma {
+    });
+    let tests = opts.config.sweep_sigma.par_iter().map(|&sigma| -> Result<(f64, LabelledResidues)> {
         let mut cfg = dataset_config(cell, 0, &opts.config, opts.quick);
         cfg.attack.amplitude = AmplitudeConfig::Fixed { sigma_multiple: sigma };
         let err = |source| ReproduceError::Dataset { cell: format!("{} at {sigma} sigma", cell.slug()), source };
         let valid_cfg = cfg.check().map_err(err)?;
         let (sweep_data, _) = load_or_build(&valid_cfg, &opts.out.join("datasets")).map_err(err)?;
-        let test = sweep_data.test().map_err(err)?;
+        Ok((sigma, sweep_data.test().map_err(err)?))
+    });
+    let (fits, tests): (Result<Vec<_>>, Result<Vec<_>>) = rayon::join(|| fits.collect(), || tests.collect());
+    let (fits, tests) = (fits?, tests?);
+    let modes: Vec<ModeRow> = fits.iter().flat_map(|(_, _, modes)| modes.iter().cloned()).collect();
+    let fitted: Vec<(Method, Box<dyn Detector>)> = fits.into_iter().map(|(m, d, _)| (m, d)).collect();
+    let mut points = Vec::new();
+    for (sigma, test) in &tests {
         for (method, det) in &fitted {
-            let scored = score_split(*method, det.as_ref(), &test)?;
-            let e = evaluate_split(&test, &scored.scores, &scored.alarms, method.name(), cell)?;
-            points.push(SweepPoint { method: method.name().to_owned(), sigma, f1: e.f1() });
+            let scored = score_split(*method, det.as_ref(), test)?;
+            let e = evaluate_split(test, &scored.scores, &scored.alarms, method.name(), cell)?;
+            points.push(SweepPoint { method: method.name().to_owned(), sigma: *sigma, f1: e.f1() });
         }
     }
     let mut series: Vec<(String, Vec<(f64, MeanStd)>)> = Vec::new();
@@ -539,16 +545,26 @@ pub fn label_fraction_ablation(opts: &Options) -> Result<Vec<(f64, RunResult)>> 
     let cell = Cell { model: UavModel::I, noise: NoiseModel::Exponential, attack: AttackModel::I };
     let data = load_cell(cell, 0, opts)?;
     let cache = opts.out.join("runs");
-    let mut rows = Vec::new();
-    for &fraction in &opts.config.ablation_fractions {
-        let splits = CellSplits::from_dataset(cell, &data, &opts.config, fraction)?;
-        let data_key = CellSplits::data_key(&data, &opts.config, fraction);
-        for &m in opts.methods.iter().filter(|m| m.is_learning()) {
-            let rec = run_one(&cache, &data_key, cell, m, 0, &opts.config.methods, splits.splits())?;
-            rows.push((fraction, rec.result));
-        }
-    }
-    Ok(rows)
+    let splits = opts
+        .config
+        .ablation_fractions
+        .iter()
+        .map(|&f| {
+            Ok((
+                f,
+                CellSplits::from_dataset(cell, &data, &opts.config, f)?,
+                CellSplits::data_key(&data, &opts.config, f),
+            ))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let jobs: Vec<(&(f64, CellSplits, String), Method)> =
+        splits.iter().flat_map(|s| opts.methods.iter().filter(|m| m.is_learning()).map(move |&m| (s, m))).collect();
+    jobs.par_iter()
+        .map(|((fraction, splits, data_key), m)| {
+            let rec = run_one(&cache, data_key, cell, *m, 0, &opts.config.methods, splits.splits())?;
+            Ok((*fraction, rec.result))
+        })
+        .collect()
 }
 
 /// The QUADFormer architecture ablation: TPC prior and DCM cross-layer attention switched off
@@ -561,16 +577,17 @@ pub fn architecture_ablation(opts: &Options) -> Result<Vec<(String, RunResult)>>
     let data = load_cell(cell, 0, opts)?;
     let splits = CellSplits::from_dataset(cell, &data, &opts.config, opts.config.labelled_fraction)?;
     let cache = opts.out.join("runs");
-    let mut rows = Vec::new();
-    for (name, tpc, dcm) in [("full", true, true), ("no TPC", false, true), ("no DCM", true, false)] {
-        let mut cfgs = opts.config.methods.clone();
-        cfgs.quadformer.net.prior = if tpc { Prior::Tpc } else { Prior::Gaussian };
-        cfgs.quadformer.net.dcm = dcm;
-        let data_key = CellSplits::data_key(&data, &opts.config, opts.config.labelled_fraction);
-        let rec = run_one(&cache, &data_key, cell, Method::QuadFormer, 0, &cfgs, splits.splits())?;
-        rows.push((name.to_owned(), rec.result));
-    }
-    Ok(rows)
+    let data_key = CellSplits::data_key(&data, &opts.config, opts.config.labelled_fraction);
+    [("full", true, true), ("no TPC", false, true), ("no DCM", true, false)]
+        .par_iter()
+        .map(|&(name, tpc, dcm)| {
+            let mut cfgs = opts.config.methods.clone();
+            cfgs.quadformer.net.prior = if tpc { Prior::Tpc } else { Prior::Gaussian };
+            cfgs.quadformer.net.dcm = dcm;
+            let rec = run_one(&cache, &data_key, cell, Method::QuadFormer, 0, &cfgs, splits.splits())?;
+            Ok((name.to_owned(), rec.result))
+        })
+        .collect()
 }
 
 /// Runs everything and writes every output; returns the paths written.
@@ -590,10 +607,25 @@ pub fn reproduce(opts: &Options) -> Result<Vec<PathBuf>> {
     let mut report = String::new();
     let (cusum_files, cusum_note) = cusum_post_attack(opts)?;
     files.extend(cusum_files);
-    let (sweep, modes, sweep_files) = amplitude_sweep(opts)?;
+    // The three studies are independent; each also runs its own fits in parallel.
+    let (sweep, (fractions, arch)) = rayon::join(
+        || amplitude_sweep(opts),
+        || {
+            rayon::join(
+                || label_fraction_ablation(opts),
+                || {
+                    if opts.methods.contains(&Method::QuadFormer) {
+                        architecture_ablation(opts)
+                    } else {
+                        Ok(Vec::new())
+                    }
+                },
+            )
+        },
+    );
+    let (sweep, modes, sweep_files) = sweep?;
     files.extend(sweep_files);
-    let fractions = label_fraction_ablation(opts)?;
-    let arch = if opts.methods.contains(&Method::QuadFormer) { architecture_ablation(opts)? } else { Vec::new() };
+    let (fractions, arch) = (fractions?, arch?);
     let wall_s = start.elapsed().as_secs_f64();
 
     write_report(&mut report, opts, &records, &cusum_note, &sweep, &modes, &fractions, &arch, wall_s);
