@@ -94,7 +94,8 @@ pub struct MatrixConfig {
     pub labelled_fraction: f64,
     /// Model II channels. Default VO + GPS.
     pub model2_channels: Model2Channels,
-    /// Amplitudes of the F1-versus-amplitude sweep in GPS σ. Default 0.5 to 10 σ (DESIGN.md).
+    /// Amplitudes of the F1-versus-amplitude sweep in GPS σ; empty switches the sweep off.
+    /// Default 0.5 to 10 σ (DESIGN.md).
     pub sweep_sigma: Vec<f64>,
     /// Label fractions of the semi-supervision ablation. Default 1%, 10%, 100% (DESIGN.md).
     pub ablation_fractions: Vec<f64>,
@@ -481,12 +482,17 @@ pub fn amplitude_sweep(opts: &Options) -> Result<(Vec<SweepPoint>, Vec<ModeRow>,
     }
     let refs: Vec<SweepSeries<'_>> = series.iter().map(|(l, p)| SweepSeries { label: l, points: p }).collect();
     let stem = opts.out.join("figures").join("f1-vs-amplitude");
-    let files = f1_amplitude_plot(
-        &stem,
-        "F1 against attack amplitude (Model I, exponential noise, Attack I; test split, seed 0)",
-        "attack amplitude (GPS sigma)",
-        &refs,
-    )?;
+    // An empty `sweep_sigma` switches the sweep off: nothing to draw.
+    let files = if points.is_empty() {
+        Vec::new()
+    } else {
+        f1_amplitude_plot(
+            &stem,
+            "F1 against attack amplitude (Model I, exponential noise, Attack I; test split, seed 0)",
+            "attack amplitude (GPS sigma)",
+            &refs,
+        )?
+    };
     Ok((points, modes, files))
 }
 

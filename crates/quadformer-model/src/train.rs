@@ -380,6 +380,37 @@ mod tests {
     }
 
     #[test]
+    fn labelled_share_sets_the_mix_of_each_epoch() {
+        use ekf_residue::{LabelledResidues, LabelledSeries, ResidueSeries};
+        // Two flights of 10 windows each, the first labelled, the second not.
+        let flight = |labelled: bool| {
+            let n = 100;
+            let s = ResidueSeries::from_flat((0..n).map(|k| k as f64).collect(), vec!["a".into()], vec![0.5; n], vec![1.0; n])
+                .unwrap();
+            LabelledSeries::new(s, labelled.then(|| vec![false; n])).unwrap()
+        };
+        let split = LabelledResidues::new(vec![flight(true), flight(false)]).unwrap();
+        let norm = crate::window::Normaliser::fit(&split).unwrap();
+        let w = Windows::from_split(&split, &norm, &crate::window::WindowConfig { len: 10, stride: 10 }).unwrap();
+        assert_eq!((0..w.len()).filter(|&i| w.is_labelled(i)).count(), 10);
+        let mut rng = StdRng::seed_from_u64(1);
+        // 80% of 16 windows = 13 labelled: all 10 once, then 3 repeats; 3 unlabelled.
+        let idx = epoch_windows(&w, 16, Some(0.8), &mut rng);
+        assert_eq!(idx.len(), 16);
+        let n_lab = idx.iter().filter(|&&i| w.is_labelled(i)).count();
+        assert_eq!(n_lab, 13);
+        let mut lab: Vec<usize> = idx.iter().copied().filter(|&i| w.is_labelled(i)).collect();
+        lab.sort_unstable();
+        lab.dedup();
+        assert_eq!(lab.len(), 10, "every labelled window is used before any repeats");
+        // Without a share the epoch is a plain sample without replacement.
+        let mut plain = epoch_windows(&w, 20, None, &mut rng);
+        plain.sort_unstable();
+        assert_eq!(plain, (0..20).collect::<Vec<_>>());
+        assert!(TrainConfig { labelled_share: Some(1.5), ..Default::default() }.check().is_err());
+    }
+
+    #[test]
     fn bad_config_is_named() {
         let e = TrainConfig { batch_size: 0, ..Default::default() }.check().unwrap_err();
         assert!(e.to_string().contains("batch_size"), "{e}");

@@ -68,8 +68,14 @@ fn prior_rows_sum_to_one_and_peak_on_diagonal() {
 
 #[test]
 fn every_parameter_receives_gradient() {
-    for (prior, dcm) in [(Prior::Tpc, true), (Prior::Tpc, false), (Prior::Gaussian, true)] {
-        let net = QuadFormerNet::new(&tiny(prior, dcm), 10, 3, 5).unwrap();
+    let cases = [
+        (Prior::Tpc, true, ClassInput::Hidden),
+        (Prior::Tpc, false, ClassInput::Hidden),
+        (Prior::Gaussian, true, ClassInput::Hidden),
+        (Prior::Tpc, true, ClassInput::Reconstruction),
+    ];
+    for (prior, dcm, class_input) in cases {
+        let net = QuadFormerNet::new(&NetConfig { class_input, ..tiny(prior, dcm) }, 10, 3, 5).unwrap();
         let trainer = MinMaxTrainer { net: &net, loss: LossConfig::default() };
         let loss = crate::train::TrainableModel::loss(&trainer, &batch(3, 10, 3, 2), 0).unwrap();
         let grads = loss.backward().unwrap();
@@ -79,7 +85,7 @@ fn every_parameter_receives_gradient() {
             if dcm && name.starts_with("layers.1.attn.w_k") {
                 continue;
             }
-            assert!(grad_norm(&grads, &var) > 0.0, "{prior:?} dcm={dcm}: no gradient reaches {name}");
+            assert!(grad_norm(&grads, &var) > 0.0, "{prior:?} dcm={dcm} {class_input:?}: no gradient reaches {name}");
         }
     }
 }
@@ -104,6 +110,20 @@ fn min_max_phases_split_gradients_like_anomaly_transformer() {
     let a = terms.dis_min.to_scalar::<f32>().unwrap();
     let b = terms.dis_max.to_scalar::<f32>().unwrap();
     assert_eq!(a, b);
+}
+
+#[test]
+fn class_head_input_sizes_and_old_configs() {
+    let hidden = QuadFormerNet::new(&tiny(Prior::Tpc, true), 10, 3, 0).unwrap();
+    let recon = QuadFormerNet::new(&NetConfig { class_input: ClassInput::Reconstruction, ..tiny(Prior::Tpc, true) }, 10, 3, 0)
+        .unwrap();
+    // class1 reads d_model = 8 values per step from the hidden state, m = 3 from R̂.
+    assert_eq!(hidden.n_params() - recon.n_params(), (8 - 3) * 4);
+    // A configuration written before the field existed reads as the paper's head.
+    let mut json = serde_json::to_value(tiny(Prior::Tpc, true)).unwrap();
+    json.as_object_mut().unwrap().remove("class_input");
+    let old: NetConfig = serde_json::from_value(json).unwrap();
+    assert_eq!(old.class_input, ClassInput::Reconstruction);
 }
 
 #[test]
