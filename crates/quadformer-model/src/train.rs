@@ -385,8 +385,13 @@ mod tests {
         // Two flights of 10 windows each, the first labelled, the second not.
         let flight = |labelled: bool| {
             let n = 100;
-            let s = ResidueSeries::from_flat((0..n).map(|k| k as f64).collect(), vec!["a".into()], vec![0.5; n], vec![1.0; n])
-                .unwrap();
+            let s = ResidueSeries::from_flat(
+                (0..n).map(|k| k as f64).collect(),
+                vec!["a".into()],
+                vec![0.5; n],
+                vec![1.0; n],
+            )
+            .unwrap();
             LabelledSeries::new(s, labelled.then(|| vec![false; n])).unwrap()
         };
         let split = LabelledResidues::new(vec![flight(true), flight(false)]).unwrap();

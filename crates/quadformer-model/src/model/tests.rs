@@ -115,8 +115,9 @@ fn min_max_phases_split_gradients_like_anomaly_transformer() {
 #[test]
 fn class_head_input_sizes_and_old_configs() {
     let hidden = QuadFormerNet::new(&tiny(Prior::Tpc, true), 10, 3, 0).unwrap();
-    let recon = QuadFormerNet::new(&NetConfig { class_input: ClassInput::Reconstruction, ..tiny(Prior::Tpc, true) }, 10, 3, 0)
-        .unwrap();
+    let recon =
+        QuadFormerNet::new(&NetConfig { class_input: ClassInput::Reconstruction, ..tiny(Prior::Tpc, true) }, 10, 3, 0)
+            .unwrap();
     // class1 reads d_model = 8 values per step from the hidden state, m = 3 from R̂.
     assert_eq!(hidden.n_params() - recon.n_params(), (8 - 3) * 4);
     // A configuration written before the field existed reads as the paper's head.
