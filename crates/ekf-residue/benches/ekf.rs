@@ -9,6 +9,7 @@ use ekf_residue::model1_filter::{ImuNoise, Model1Filter};
 use ekf_residue::{CovarianceUpdate, DivergenceGuard, FilterConfig, Model2Filter, ModelKind, generate_residues};
 use nalgebra::{SMatrix, Vector3};
 use std::hint::black_box;
+use std::time::{Duration, Instant};
 use uav_dynamics::model1::{self, ImuInput};
 use uav_dynamics::sensors::VoSample;
 use uav_dynamics::sim::{SimConfig, simulate};
@@ -32,38 +33,39 @@ fn p0() -> SMatrix<f64, 15, 15> {
 
 const U: ImuInput = ImuInput { omega_m: Vector3::new(0.01, -0.02, 0.1), a_m: Vector3::new(0.1, 0.05, 9.81) };
 
+/// Times `iters` IMU predictions on a clone of `filter`. Pure prediction grows P without bound,
+/// so every 1000 steps (5 s) the filter restarts from `filter`; otherwise the divergence guard
+/// would fire and the error path would be measured.
+fn restarting_predictions<F: Clone>(filter: &F, iters: u64, mut predict: impl FnMut(&mut F)) -> Duration {
+    let mut f = filter.clone();
+    let start = Instant::now();
+    for k in 0..iters {
+        if k % 1000 == 0 {
+            f = filter.clone();
+        }
+        predict(&mut f);
+    }
+    start.elapsed()
+}
+
 fn bench_model1(c: &mut Criterion) {
     let mut g = c.benchmark_group("model1");
     g.throughput(Throughput::Elements(1));
     let filter =
         Model1Filter::new(x0(), p0(), 0.0, ImuNoise::default(), CovarianceUpdate::Joseph, DivergenceGuard::default())
             .unwrap_or_else(|e| unreachable!("{e}"));
-    // Pure prediction grows P without bound, so every 1000 steps (5 s) the filter restarts from
-    // P₀; otherwise the divergence guard would fire and the error path would be measured.
     g.bench_function("predict_sparse", |b| {
         b.iter_custom(|iters| {
-            let mut f = filter.clone();
-            let start = std::time::Instant::now();
-            for k in 0..iters {
-                if k % 1000 == 0 {
-                    f = filter.clone();
-                }
+            restarting_predictions(&filter, iters, |f| {
                 let _ = black_box(f.predict(black_box(&U), black_box(0.005)));
-            }
-            start.elapsed()
+            })
         })
     });
     g.bench_function("predict_dense", |b| {
         b.iter_custom(|iters| {
-            let mut f = filter.clone();
-            let start = std::time::Instant::now();
-            for k in 0..iters {
-                if k % 1000 == 0 {
-                    f = filter.clone();
-                }
+            restarting_predictions(&filter, iters, |f| {
                 let _ = black_box(f.predict_dense(black_box(&U), black_box(0.005)));
-            }
-            start.elapsed()
+            })
         })
     });
     let r6 = [0.25, 0.25, 0.5625, 3e-4, 3e-4, 1.2e-3];
@@ -91,15 +93,9 @@ fn bench_model2(c: &mut Criterion) {
             .unwrap_or_else(|e| unreachable!("{e}"));
     g.bench_function("predict_sparse", |b| {
         b.iter_custom(|iters| {
-            let mut f = filter.clone();
-            let start = std::time::Instant::now();
-            for k in 0..iters {
-                if k % 1000 == 0 {
-                    f = filter.clone();
-                }
+            restarting_predictions(&filter, iters, |f| {
                 let _ = black_box(f.predict(black_box(&U), black_box(0.005)));
-            }
-            start.elapsed()
+            })
         })
     });
     let vo = VoSample { t: 0.0, keyframe: 0, p_rel: Vector3::new(0.01, 0.0, 0.0), q_rel: Vector3::zeros() };

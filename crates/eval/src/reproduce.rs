@@ -424,16 +424,19 @@ pub struct SweepPoint {
     pub f1: f64,
 }
 
-/// F1 against attack amplitude: every method is fitted once on the Model I, exponential,
-/// Attack I cell at seed 0 (thresholds from its validation split), then scores test splits
-/// whose attacks all have one fixed amplitude (`sigma` × GPS σ); no refitting per amplitude.
+/// The cell of the amplitude sweep and the ablations: Model I, exponential noise, Attack I
+/// (their dataset is [`STUDY_CELL`] at seed 0, loaded once by [`reproduce`]).
+pub const STUDY_CELL: Cell = Cell { model: UavModel::I, noise: NoiseModel::Exponential, attack: AttackModel::I };
+
+/// F1 against attack amplitude: every method is fitted once on `data` ([`STUDY_CELL`] at seed
+/// 0; thresholds from its validation split), then scores test splits whose attacks all have
+/// one fixed amplitude (`sigma` × GPS σ); no refitting per amplitude.
 ///
 /// # Errors
 /// Any stage's error.
-pub fn amplitude_sweep(opts: &Options) -> Result<(Vec<SweepPoint>, Vec<ModeRow>, Vec<PathBuf>)> {
-    let cell = Cell { model: UavModel::I, noise: NoiseModel::Exponential, attack: AttackModel::I };
-    let data = load_cell(cell, 0, opts)?;
-    let splits = CellSplits::from_dataset(cell, &data, &opts.config, opts.config.labelled_fraction)?;
+pub fn amplitude_sweep(opts: &Options, data: &Dataset) -> Result<(Vec<SweepPoint>, Vec<ModeRow>, Vec<PathBuf>)> {
+    let cell = STUDY_CELL;
+    let splits = CellSplits::from_dataset(cell, data, &opts.config, opts.config.labelled_fraction)?;
     let cfgs = opts.config.methods.seeded(0);
     let methods: Vec<Method> = opts.methods.iter().copied().filter(|m| applicable(*m, cell, &opts.config)).collect();
     // Fit every method and build every amplitude's dataset, in parallel.
@@ -542,25 +545,20 @@ fn score_modes(qf: &QuadFormerDetector, test: &LabelledResidues, cell: Cell) -> 
 }
 
 /// The semi-supervision ablation: learning methods retrained with 1%, 10% and 100% of the
-/// training flights labelled, on the Model I, exponential, Attack I cell at seed 0; returns
-/// `(method, fraction, result)` rows.
+/// training flights labelled, on `data` ([`STUDY_CELL`] at seed 0); returns
+/// `(fraction, result)` rows.
 ///
 /// # Errors
 /// Any stage's error.
-pub fn label_fraction_ablation(opts: &Options) -> Result<Vec<(f64, RunResult)>> {
-    let cell = Cell { model: UavModel::I, noise: NoiseModel::Exponential, attack: AttackModel::I };
-    let data = load_cell(cell, 0, opts)?;
+pub fn label_fraction_ablation(opts: &Options, data: &Dataset) -> Result<Vec<(f64, RunResult)>> {
+    let cell = STUDY_CELL;
     let cache = opts.out.join("runs");
     let splits = opts
         .config
         .ablation_fractions
         .iter()
         .map(|&f| {
-            Ok((
-                f,
-                CellSplits::from_dataset(cell, &data, &opts.config, f)?,
-                CellSplits::data_key(&data, &opts.config, f),
-            ))
+            Ok((f, CellSplits::from_dataset(cell, data, &opts.config, f)?, CellSplits::data_key(data, &opts.config, f)))
         })
         .collect::<Result<Vec<_>>>()?;
     let jobs: Vec<(&(f64, CellSplits, String), Method)> =
@@ -574,16 +572,15 @@ pub fn label_fraction_ablation(opts: &Options) -> Result<Vec<(f64, RunResult)>> 
 }
 
 /// The QUADFormer architecture ablation: TPC prior and DCM cross-layer attention switched off
-/// in turn, on the Model I, exponential, Attack I cell at seed 0.
+/// in turn, on `data` ([`STUDY_CELL`] at seed 0).
 ///
 /// # Errors
 /// Any stage's error.
-pub fn architecture_ablation(opts: &Options) -> Result<Vec<(String, RunResult)>> {
-    let cell = Cell { model: UavModel::I, noise: NoiseModel::Exponential, attack: AttackModel::I };
-    let data = load_cell(cell, 0, opts)?;
-    let splits = CellSplits::from_dataset(cell, &data, &opts.config, opts.config.labelled_fraction)?;
+pub fn architecture_ablation(opts: &Options, data: &Dataset) -> Result<Vec<(String, RunResult)>> {
+    let cell = STUDY_CELL;
+    let splits = CellSplits::from_dataset(cell, data, &opts.config, opts.config.labelled_fraction)?;
     let cache = opts.out.join("runs");
-    let data_key = CellSplits::data_key(&data, &opts.config, opts.config.labelled_fraction);
+    let data_key = CellSplits::data_key(data, &opts.config, opts.config.labelled_fraction);
     [("full", true, true), ("no TPC", false, true), ("no DCM", true, false)]
         .par_iter()
         .map(|&(name, tpc, dcm)| {
@@ -613,15 +610,17 @@ pub fn reproduce(opts: &Options) -> Result<Vec<PathBuf>> {
     let mut report = String::new();
     let (cusum_files, cusum_note) = cusum_post_attack(opts)?;
     files.extend(cusum_files);
-    // The three studies are independent; each also runs its own fits in parallel.
+    // The three studies share one dataset and are independent; each also runs its own fits in
+    // parallel.
+    let study_data = load_cell(STUDY_CELL, 0, opts)?;
     let (sweep, (fractions, arch)) = rayon::join(
-        || amplitude_sweep(opts),
+        || amplitude_sweep(opts, &study_data),
         || {
             rayon::join(
-                || label_fraction_ablation(opts),
+                || label_fraction_ablation(opts, &study_data),
                 || {
                     if opts.methods.contains(&Method::QuadFormer) {
-                        architecture_ablation(opts)
+                        architecture_ablation(opts, &study_data)
                     } else {
                         Ok(Vec::new())
                     }

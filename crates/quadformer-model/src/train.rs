@@ -190,24 +190,26 @@ fn shuffle(idx: &mut [usize], rng: &mut StdRng) {
 /// replacement, or, with a labelled share `ρ` and both kinds of window present, `⌈ρ·n⌉`
 /// labelled windows (each used once before any repeats) and the rest unlabelled ones.
 fn epoch_windows(windows: &Windows, per_epoch: usize, share: Option<f64>, rng: &mut StdRng) -> Vec<usize> {
-    let (mut lab, mut unlab): (Vec<usize>, Vec<usize>) = (0..windows.len()).partition(|&w| windows.is_labelled(w));
-    let Some(share) = share.filter(|_| !lab.is_empty() && !unlab.is_empty()) else {
-        let mut idx: Vec<usize> = (0..windows.len()).collect();
-        shuffle(&mut idx, rng);
-        idx.truncate(per_epoch);
-        return idx;
-    };
-    let n_lab = ((share * per_epoch as f64).ceil() as usize).min(per_epoch);
-    let n_unlab = (per_epoch - n_lab).min(unlab.len());
-    let mut idx = Vec::with_capacity(n_lab + n_unlab);
-    while idx.len() < n_lab {
-        shuffle(&mut lab, rng);
-        idx.extend(lab.iter().take(n_lab - idx.len()));
+    let mut all: Vec<usize> = (0..windows.len()).collect();
+    if let Some(share) = share {
+        let (mut lab, mut unlab): (Vec<usize>, Vec<usize>) = all.iter().partition(|&&w| windows.is_labelled(w));
+        if !lab.is_empty() && !unlab.is_empty() {
+            let n_lab = ((share * per_epoch as f64).ceil() as usize).min(per_epoch);
+            let n_unlab = (per_epoch - n_lab).min(unlab.len());
+            let mut idx = Vec::with_capacity(n_lab + n_unlab);
+            while idx.len() < n_lab {
+                shuffle(&mut lab, rng);
+                idx.extend(lab.iter().take(n_lab - idx.len()));
+            }
+            shuffle(&mut unlab, rng);
+            idx.extend(&unlab[..n_unlab]);
+            shuffle(&mut idx, rng);
+            return idx;
+        }
     }
-    shuffle(&mut unlab, rng);
-    idx.extend(&unlab[..n_unlab]);
-    shuffle(&mut idx, rng);
-    idx
+    shuffle(&mut all, rng);
+    all.truncate(per_epoch);
+    all
 }
 
 /// Trains the variables of `varmap` through `model` on `windows` (module docs for the loop),
