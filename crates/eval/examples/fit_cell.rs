@@ -22,6 +22,11 @@ use eval::runner::{Method, fit};
 use quadformer_model::TrainReport;
 
 fn main() -> Result<()> {
+    // SAFETY: first thing in `main`, before any other thread exists.
+    #[allow(unsafe_code)]
+    unsafe {
+        eval::runtime::init_cpu_runtime();
+    }
     let mut args = std::env::args().skip(1);
     let (Some(method), Some(cell)) = (args.next(), args.next()) else {
         bail!("usage: fit_cell <method> <cell> [--seed N] [--config FILE.toml] [--out DIR]");

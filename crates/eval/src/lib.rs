@@ -12,5 +12,6 @@ pub mod metrics;
 pub mod plot;
 pub mod reproduce;
 pub mod runner;
+pub mod runtime;
 pub mod scenarios;
 pub mod table;

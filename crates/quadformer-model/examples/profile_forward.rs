@@ -6,7 +6,7 @@
 use std::time::Instant;
 
 use candle_core::{D, Device, Tensor};
-use quadformer_model::{NetConfig, QuadFormerNet, tune_allocator};
+use quadformer_model::{GradFlow, NetConfig, QuadFormerNet, tune_allocator};
 
 fn time<T>(label: &str, n: usize, mut f: impl FnMut() -> candle_core::Result<T>) -> candle_core::Result<()> {
     for _ in 0..n / 10 {
@@ -31,7 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let x = Tensor::zeros((1, 100, 6), candle_core::DType::F32, &Device::Cpu)?;
     time("forward b=1", 300, || net.forward(&x))?;
     let out = net.forward(&x)?;
-    time("tcd b=1", 300, || QuadFormerNet::tcd(&out, false, false))?;
+    time("tcd b=1", 300, || QuadFormerNet::tcd(&out, GradFlow::Pass, GradFlow::Pass))?;
     let a = out.attn[0].clone();
     time("softmax 100x100", 300, || candle_nn::ops::softmax(&a, D::Minus1))?;
     time("log 100x100", 300, || a.log())?;

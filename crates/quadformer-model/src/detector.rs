@@ -24,7 +24,7 @@ use ekf_residue::{
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
-use crate::model::{LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet};
+use crate::model::{GradFlow, LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet};
 use crate::train::{TrainConfig, TrainReport, train};
 use crate::window::{Normaliser, WindowConfig, Windows};
 
@@ -67,15 +67,25 @@ pub struct ScoreConfig {
     /// Steps between windows when scoring a whole series (scores of overlapping windows are
     /// averaged). Default 10 (docs/decisions/041-window-stride.md).
     pub stride: usize,
+    /// Steps between windows when the validation split is scored after each training epoch
+    /// for early stopping; the final mode and threshold are always chosen at `stride`. A value
+    /// above the window length is treated as the window length. Default 50, half a default
+    /// window: five times fewer windows than `stride` (docs/decisions/065-training-cost.md).
+    #[serde(default = "default_epoch_stride")]
+    pub epoch_stride: usize,
     /// Use this mode instead of choosing on validation F1. Default `None`.
     pub mode: Option<ScoreMode>,
     /// Windows per inference batch. Default 64 (memory bound, not a model choice).
     pub batch_size: usize,
 }
 
+fn default_epoch_stride() -> usize {
+    50
+}
+
 impl Default for ScoreConfig {
     fn default() -> Self {
-        Self { temperature: 50.0, stride: 10, mode: None, batch_size: 64 }
+        Self { temperature: 50.0, stride: 10, epoch_stride: default_epoch_stride(), mode: None, batch_size: 64 }
     }
 }
 
@@ -125,11 +135,14 @@ impl QuadFormerConfig {
         if !(self.score.temperature.is_finite() && self.score.temperature > 0.0) {
             return Err(ModelError::Config { field: "score.temperature", msg: "must be finite and positive".into() });
         }
-        if self.score.stride == 0 || self.score.batch_size == 0 {
-            return Err(ModelError::Config {
-                field: "score.stride",
-                msg: "stride and batch_size must be at least 1".into(),
-            });
+        for (field, v) in [
+            ("score.stride", self.score.stride),
+            ("score.epoch_stride", self.score.epoch_stride),
+            ("score.batch_size", self.score.batch_size),
+        ] {
+            if v == 0 {
+                return Err(ModelError::Config { field, msg: "must be at least 1".into() });
+            }
         }
         Ok(())
     }
@@ -201,7 +214,7 @@ fn window_scores(net: &QuadFormerNet, x: &Tensor, temperature: f64, need: Need) 
     let out = net.forward(x)?;
     let mut res: [Vec<f32>; 3] = Default::default();
     if need.alg2 || need.at {
-        let neg_tcd = QuadFormerNet::tcd(&out, false, false)?.neg()?;
+        let neg_tcd = QuadFormerNet::tcd(&out, GradFlow::Stop, GradFlow::Stop)?.neg()?;
         if need.alg2 {
             res[0] = candle_nn::ops::softmax(&neg_tcd, D::Minus1)?.flatten_all()?.to_vec1()?;
         }
@@ -330,8 +343,9 @@ impl Fit for QuadFormerConfig {
         let mut net = QuadFormerNet::new(&self.net, self.window.len, norm.dim(), self.train.seed)?;
         let report = {
             let trainer = MinMaxTrainer { net: &net, loss: self.loss };
+            let epoch_score = ScoreConfig { stride: self.score.epoch_stride, ..self.score.clone() };
             let mut valid_metric = |t: &MinMaxTrainer<'_>| -> Result<f64> {
-                let cal = calibrate(t.net, &norm, &self.score, valid)?;
+                let cal = calibrate(t.net, &norm, &epoch_score, valid)?;
                 Ok(-chosen(&cal.results, self.score.mode)?.valid_f1)
             };
             train(&trainer, net.varmap(), &windows, &self.train, &mut valid_metric)?

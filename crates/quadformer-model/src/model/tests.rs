@@ -45,7 +45,7 @@ fn output_shapes() {
     assert_eq!(out.attn.len(), 2);
     assert_eq!(out.attn[0].dims(), &[4, 2, 12, 12]);
     assert_eq!(out.prior[1].dims(), &[1, 2, 12, 12]);
-    assert_eq!(QuadFormerNet::tcd(&out, false, false).unwrap().dims(), &[4, 12]);
+    assert_eq!(QuadFormerNet::tcd(&out, GradFlow::Pass, GradFlow::Pass).unwrap().dims(), &[4, 12]);
     assert!(net.forward(&batch(1, 11, 3, 1).x).is_err());
 }
 
@@ -110,6 +110,40 @@ fn min_max_phases_split_gradients_like_anomaly_transformer() {
     let a = terms.dis_min.to_scalar::<f32>().unwrap();
     let b = terms.dis_max.to_scalar::<f32>().unwrap();
     assert_eq!(a, b);
+}
+
+#[test]
+fn summed_loss_has_the_value_and_gradient_of_both_phases() {
+    for prior in [Prior::Tpc, Prior::Gaussian] {
+        let net = QuadFormerNet::new(&tiny(prior, true), 10, 3, 9).unwrap();
+        let (b, cfg) =
+            (batch(3, 10, 3, 4), LossConfig { lambda: 3.0, alpha1: 0.7, alpha2: 1.3, ..LossConfig::default() });
+        let terms = net.loss_terms(&b, &cfg).unwrap();
+        let two = (terms.max_phase(&cfg).unwrap() + terms.min_phase(&cfg).unwrap()).unwrap();
+        let one = net.summed_min_max_loss(&b, &cfg).unwrap();
+        let (v2, v1) = (two.to_scalar::<f32>().unwrap(), one.to_scalar::<f32>().unwrap());
+        assert!((v1 - v2).abs() <= 1e-5 * v2.abs(), "{prior:?}: value {v1} against {v2}");
+        let (g2, g1) = (two.backward().unwrap(), one.backward().unwrap());
+        for (name, var) in vars(&net) {
+            let (Some(a), Some(b)) = (g2.get(var.as_tensor()), g1.get(var.as_tensor())) else {
+                assert!(g2.get(var.as_tensor()).is_none() && g1.get(var.as_tensor()).is_none(), "{name}");
+                continue;
+            };
+            let scale = a.abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap().max(1e-6);
+            let diff = (a - b).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+            assert!(diff <= 1e-4 * scale, "{prior:?} {name}: gradients differ by {diff} (scale {scale})");
+        }
+    }
+}
+
+#[test]
+fn reversed_gradient_keeps_the_value_and_flips_the_sign() {
+    let x = Var::new(&[0.25f32, -2.0, 3.5], &Device::Cpu).unwrap();
+    let y = GradFlow::Reverse.apply(x.as_tensor()).unwrap();
+    assert_eq!(y.to_vec1::<f32>().unwrap(), vec![0.25, -2.0, 3.5]);
+    let g = y.sqr().unwrap().sum_all().unwrap().backward().unwrap();
+    assert_eq!(g.get(x.as_tensor()).unwrap().to_vec1::<f32>().unwrap(), vec![-0.5, 4.0, -7.0]);
+    assert!(GradFlow::Stop.apply(x.as_tensor()).unwrap().sum_all().unwrap().backward().unwrap().get(&x).is_none());
 }
 
 #[test]
