@@ -862,6 +862,20 @@ pub fn build(cfg: &ValidDatasetConfig) -> Result<Dataset> {
     Ok(data)
 }
 
+/// The flights of one split alone, fully labelled, without building the other splits or
+/// touching the cache. They are the flights [`build`] makes for that split, because every
+/// flight's seeds derive from `(seed, split, index)` only; the amplitude sweep uses this to
+/// score test splits at fixed amplitudes without simulating training data it never uses.
+///
+/// # Errors
+/// As [`build`].
+pub fn build_split(cfg: &ValidDatasetConfig, split: Split) -> Result<LabelledResidues> {
+    let cfg = cfg.get();
+    let specs: Vec<FlightSpec> = cfg.flight_specs().into_iter().filter(|s| s.split == split).collect();
+    let flights = specs.par_iter().map(|spec| run_flight(cfg, spec)).collect::<Result<Vec<_>>>()?;
+    Dataset::split_residues(&flights, |_| true)
+}
+
 /// The cache file of `cfg` in `cache_dir`: `<cell>-<first 16 hex digits of the key>.qfds`.
 ///
 /// # Errors

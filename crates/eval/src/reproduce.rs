@@ -13,20 +13,22 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use attack_inject::{AmplitudeConfig, AttackKind};
-use ekf_residue::Fit;
 use ekf_residue::residues::{MODEL2_VO_CHANNELS, ModelKind};
 use ekf_residue::{Detector, LabelledResidues};
 use indicatif::{ProgressBar, ProgressStyle};
-use quadformer_model::{Prior, QuadFormerDetector};
+use quadformer_model::Prior;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use uav_dynamics::noise::NoiseShape;
 
-use crate::dataset::{Dataset, DatasetConfig, SplitSteps, load_or_build};
+use crate::dataset::{Dataset, DatasetConfig, Split, SplitSteps, build_split, load_or_build};
 use crate::io::write_text_atomic;
 use crate::metrics::{MeanStd, RocCurve};
 use crate::plot::{StatisticTrace, SweepSeries, f1_amplitude_plot, roc_plot, statistic_plot};
-use crate::runner::{Method, MethodConfigs, RunError, RunRecord, Splits, evaluate_split, fit, run_one, score_split};
+use crate::runner::{
+    Method, MethodConfigs, ModeMetrics, RunError, RunRecord, Splits, evaluate_split, fit, run_one, run_one_keeping,
+    score_split,
+};
 use crate::table::{AttackModel, Cell, NoiseModel, RunResult, UavModel, write_outputs};
 
 /// Errors of `reproduce-tables`, each naming the stage and cell.
@@ -281,22 +283,36 @@ fn applicable(method: Method, cell: Cell, cfg: &MatrixConfig) -> bool {
     !(method == Method::Px4Gate && cell.model == UavModel::II && cfg.model2_channels == Model2Channels::Vo)
 }
 
+/// Fitted detectors kept from the matrix for the studies, by method.
+pub type KeptFits = Vec<(Method, Box<dyn Detector>)>;
+
 /// Runs every `(seed, cell, method)` of the options (cached runs are reused), in parallel over
 /// `(seed, cell)` units, and returns the records sorted by cell, method and seed.
 ///
 /// # Errors
 /// The first failing stage.
 pub fn run_matrix(opts: &Options) -> Result<Vec<RunRecord>> {
+    run_matrix_keeping(opts, None).map(|(records, _)| records)
+}
+
+/// [`run_matrix`], also returning the detectors fitted (not loaded from the cache) for the unit
+/// `keep = (cell, seed)`, so that the amplitude sweep scores with the matrix's own fits.
+///
+/// # Errors
+/// The first failing stage.
+pub fn run_matrix_keeping(opts: &Options, keep: Option<(Cell, u64)>) -> Result<(Vec<RunRecord>, KeptFits)> {
     let units: Vec<(u64, Cell)> = (0..opts.seeds).flat_map(|s| opts.cells.iter().map(move |c| (s, *c))).collect();
     let n_runs = units.len() * opts.methods.len();
     let bar = progress_bar(n_runs as u64, opts.progress);
     let cache_dir = opts.out.join("runs");
+    let kept = std::sync::Mutex::new(KeptFits::new());
     let records: Vec<Vec<RunRecord>> = units
         .par_iter()
         .map(|&(seed, cell)| {
             bar.set_message(format!("{} seed {seed}: dataset", cell.slug()));
             let data = load_cell(cell, seed, opts)?;
             let splits = CellSplits::from_dataset(cell, &data, &opts.config, opts.config.labelled_fraction)?;
+            let data_key = CellSplits::data_key(&data, &opts.config, opts.config.labelled_fraction);
             let mut out = Vec::new();
             for &method in &opts.methods {
                 if !applicable(method, cell, &opts.config) {
@@ -304,8 +320,14 @@ pub fn run_matrix(opts: &Options) -> Result<Vec<RunRecord>> {
                     continue;
                 }
                 bar.set_message(format!("{} seed {seed}: {}", cell.slug(), method.name()));
-                let data_key = CellSplits::data_key(&data, &opts.config, opts.config.labelled_fraction);
-                let rec = run_one(&cache_dir, &data_key, cell, method, seed, &opts.config.methods, splits.splits())?;
+                let (rec, fitted) =
+                    run_one_keeping(&cache_dir, &data_key, cell, method, seed, &opts.config.methods, splits.splits())?;
+                if let Some(det) = fitted
+                    && keep == Some((cell, seed))
+                    && let Ok(mut kept) = kept.lock()
+                {
+                    kept.push((method, det));
+                }
                 bar.inc(1);
                 out.push(rec);
             }
@@ -317,7 +339,8 @@ pub fn run_matrix(opts: &Options) -> Result<Vec<RunRecord>> {
     records.sort_by(|a, b| {
         (a.result.cell(), &a.result.method, a.result.seed).cmp(&(b.result.cell(), &b.result.method, b.result.seed))
     });
-    Ok(records)
+    let kept = kept.into_inner().unwrap_or_default();
+    Ok((records, kept))
 }
 
 /// Draws one ROC figure per cell from the seed-0 runs.
@@ -428,51 +451,47 @@ pub struct SweepPoint {
 /// (their dataset is [`STUDY_CELL`] at seed 0, loaded once by [`reproduce`]).
 pub const STUDY_CELL: Cell = Cell { model: UavModel::I, noise: NoiseModel::Exponential, attack: AttackModel::I };
 
-/// F1 against attack amplitude: every method is fitted once on `data` ([`STUDY_CELL`] at seed
-/// 0; thresholds from its validation split), then scores test splits whose attacks all have
-/// one fixed amplitude (`sigma` × GPS σ); no refitting per amplitude.
+/// F1 against attack amplitude: every method fitted once on `data` ([`STUDY_CELL`] at seed 0;
+/// thresholds from its validation split) scores test splits whose attacks all have one fixed
+/// amplitude (`sigma` × GPS σ); no refitting per amplitude. The matrix's own fits of that unit
+/// are used where given in `fitted` (the others are fitted here). Each amplitude's test split
+/// is the cell's test flights attacked at that amplitude, built alone ([`build_split`]).
 ///
 /// # Errors
 /// Any stage's error.
-pub fn amplitude_sweep(opts: &Options, data: &Dataset) -> Result<(Vec<SweepPoint>, Vec<ModeRow>, Vec<PathBuf>)> {
+pub fn amplitude_sweep(opts: &Options, data: &Dataset, fitted: KeptFits) -> Result<(Vec<SweepPoint>, Vec<PathBuf>)> {
     let cell = STUDY_CELL;
     let splits = CellSplits::from_dataset(cell, data, &opts.config, opts.config.labelled_fraction)?;
     let cfgs = opts.config.methods.seeded(0);
-    let methods: Vec<Method> = opts.methods.iter().copied().filter(|m| applicable(*m, cell, &opts.config)).collect();
-    // Fit every method and build every amplitude's dataset, in parallel.
-    let fits = methods.par_iter().map(|&m| -> Result<(Method, Box<dyn Detector>, Vec<ModeRow>)> {
-        if m == Method::QuadFormer {
-            // Fitted as its concrete type so that every score mode can be evaluated on test.
-            let qf = cfgs
-                .quadformer
-                .fit(&splits.train, &splits.valid)
-                .map_err(|e| RunError::Fit { method: m.name(), msg: e.to_string() })?;
-            let modes = score_modes(&qf, &splits.test, cell)?;
-            Ok((m, Box::new(qf), modes))
-        } else {
-            Ok((m, fit(m, &cfgs, &splits.train, &splits.valid)?.detector, Vec::new()))
-        }
-    });
+    let missing: Vec<Method> = opts
+        .methods
+        .iter()
+        .copied()
+        .filter(|m| applicable(*m, cell, &opts.config) && !fitted.iter().any(|(f, _)| f == m))
+        .collect();
+    // Fit the missing methods and build every amplitude's test split, in parallel.
+    let fits = missing.par_iter().map(|&m| Ok((m, fit(m, &cfgs, &splits.train, &splits.valid)?.detector)));
     let tests = opts.config.sweep_sigma.par_iter().map(|&sigma| -> Result<(f64, LabelledResidues)> {
         let mut cfg = dataset_config(cell, 0, &opts.config, opts.quick);
         cfg.attack.amplitude = AmplitudeConfig::Fixed { sigma_multiple: sigma };
         let err = |source| ReproduceError::Dataset { cell: format!("{} at {sigma} sigma", cell.slug()), source };
         let valid_cfg = cfg.check().map_err(err)?;
-        let (sweep_data, _) = load_or_build(&valid_cfg, &opts.out.join("datasets")).map_err(err)?;
-        Ok((sigma, sweep_data.test().map_err(err)?))
+        Ok((sigma, build_split(&valid_cfg, Split::Test).map_err(err)?))
     });
-    let (fits, tests): (Result<Vec<_>>, Result<Vec<_>>) = rayon::join(|| fits.collect(), || tests.collect());
-    let (fits, tests) = (fits?, tests?);
-    let modes: Vec<ModeRow> = fits.iter().flat_map(|(_, _, modes)| modes.iter().cloned()).collect();
-    let fitted: Vec<(Method, Box<dyn Detector>)> = fits.into_iter().map(|(m, d, _)| (m, d)).collect();
-    let mut points = Vec::new();
-    for (sigma, test) in &tests {
-        for (method, det) in &fitted {
+    let (fits, tests): (Result<KeptFits>, Result<Vec<_>>) = rayon::join(|| fits.collect(), || tests.collect());
+    let (mut fitted, tests) = (fitted, tests?);
+    fitted.extend(fits?);
+    fitted.sort_by_key(|(m, _)| opts.methods.iter().position(|o| o == m));
+    let pairs: Vec<(usize, usize)> = (0..tests.len()).flat_map(|t| (0..fitted.len()).map(move |f| (t, f))).collect();
+    let points = pairs
+        .par_iter()
+        .map(|&(t, f)| {
+            let ((sigma, test), (method, det)) = (&tests[t], &fitted[f]);
             let scored = score_split(*method, det.as_ref(), test)?;
             let e = evaluate_split(test, &scored.scores, &scored.alarms, method.name(), cell)?;
-            points.push(SweepPoint { method: method.name().to_owned(), sigma: *sigma, f1: e.f1() });
-        }
-    }
+            Ok(SweepPoint { method: method.name().to_owned(), sigma: *sigma, f1: e.f1() })
+        })
+        .collect::<Result<Vec<_>>>()?;
     let mut series: Vec<(String, Vec<(f64, MeanStd)>)> = Vec::new();
     for (method, _) in &fitted {
         let pts = points
@@ -496,67 +515,28 @@ pub fn amplitude_sweep(opts: &Options, data: &Dataset) -> Result<(Vec<SweepPoint
             &refs,
         )?
     };
-    Ok((points, modes, files))
+    Ok((points, files))
 }
 
-/// One row of the QUADFormer score-mode ablation.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ModeRow {
-    /// Mode name.
-    pub mode: &'static str,
-    /// Whether validation chose this mode.
-    pub chosen: bool,
-    /// Validation F1 at the mode's validation threshold.
-    pub valid_f1: f64,
-    /// Test F1 at the same threshold.
-    pub test_f1: f64,
-    /// Test ROC AUC of the mode's scores.
-    pub test_auc: f64,
-}
-
-/// Every score mode of a fitted QUADFormer on the test split, each at its own validation
-/// threshold (the ablation of Algorithm 2's criterion against the alternatives).
-fn score_modes(qf: &QuadFormerDetector, test: &LabelledResidues, cell: Cell) -> Result<Vec<ModeRow>> {
-    let mut per_mode: Vec<(quadformer_model::ModeResult, Vec<Vec<f64>>)> = Vec::new();
-    for f in test.flights() {
-        let by_mode =
-            qf.scores_by_mode(f.series()).map_err(|e| RunError::Fit { method: "QUADFormer", msg: e.to_string() })?;
-        for (i, (res, scores)) in by_mode.into_iter().enumerate() {
-            if per_mode.len() <= i {
-                per_mode.push((res, Vec::new()));
-            }
-            per_mode[i].1.push(scores);
-        }
-    }
-    let chosen = qf.chosen().mode;
-    let mut rows = Vec::new();
-    for (res, scores) in &per_mode {
-        let alarms: Vec<Vec<bool>> = scores.iter().map(|s| s.iter().map(|&v| v > res.threshold).collect()).collect();
-        let e = evaluate_split(test, scores, &alarms, "QUADFormer", cell)?;
-        rows.push(ModeRow {
-            mode: res.mode.name(),
-            chosen: res.mode == chosen,
-            valid_f1: res.valid_f1,
-            test_f1: e.f1(),
-            test_auc: e.roc.auc(),
-        });
-    }
-    Ok(rows)
-}
-
-/// The semi-supervision ablation: learning methods retrained with 1%, 10% and 100% of the
-/// training flights labelled, on `data` ([`STUDY_CELL`] at seed 0); returns
-/// `(fraction, result)` rows.
+/// The semi-supervision ablation: learning methods retrained with each of the configured
+/// fractions (1%, 10% and 100%) of the training flights labelled, on `data` ([`STUDY_CELL`] at
+/// seed 0); returns `(fraction, result)` rows. The matrix's own labelled fraction is skipped
+/// unless `with_matrix_fraction`: the matrix already runs it ([`reproduce`] takes its rows).
 ///
 /// # Errors
 /// Any stage's error.
-pub fn label_fraction_ablation(opts: &Options, data: &Dataset) -> Result<Vec<(f64, RunResult)>> {
+pub fn label_fraction_ablation(
+    opts: &Options,
+    data: &Dataset,
+    with_matrix_fraction: bool,
+) -> Result<Vec<(f64, RunResult)>> {
     let cell = STUDY_CELL;
     let cache = opts.out.join("runs");
     let splits = opts
         .config
         .ablation_fractions
         .iter()
+        .filter(|&&f| with_matrix_fraction || f != opts.config.labelled_fraction)
         .map(|&f| {
             Ok((f, CellSplits::from_dataset(cell, data, &opts.config, f)?, CellSplits::data_key(data, &opts.config, f)))
         })
@@ -571,18 +551,23 @@ pub fn label_fraction_ablation(opts: &Options, data: &Dataset) -> Result<Vec<(f6
         .collect()
 }
 
+/// The variants of the QUADFormer architecture ablation: `(name, TPC on, DCM on)`.
+const ARCHITECTURES: [(&str, bool, bool); 3] = [("full", true, true), ("no TPC", false, true), ("no DCM", true, false)];
+
 /// The QUADFormer architecture ablation: TPC prior and DCM cross-layer attention switched off
-/// in turn, on `data` ([`STUDY_CELL`] at seed 0).
+/// in turn, on `data` ([`STUDY_CELL`] at seed 0). The full network is the matrix's own run and
+/// is skipped unless `with_full`.
 ///
 /// # Errors
 /// Any stage's error.
-pub fn architecture_ablation(opts: &Options, data: &Dataset) -> Result<Vec<(String, RunResult)>> {
+pub fn architecture_ablation(opts: &Options, data: &Dataset, with_full: bool) -> Result<Vec<(String, RunResult)>> {
     let cell = STUDY_CELL;
     let splits = CellSplits::from_dataset(cell, data, &opts.config, opts.config.labelled_fraction)?;
     let cache = opts.out.join("runs");
     let data_key = CellSplits::data_key(data, &opts.config, opts.config.labelled_fraction);
-    [("full", true, true), ("no TPC", false, true), ("no DCM", true, false)]
+    ARCHITECTURES
         .par_iter()
+        .filter(|(_, tpc, dcm)| with_full || !(*tpc && *dcm))
         .map(|&(name, tpc, dcm)| {
             let mut cfgs = opts.config.methods.clone();
             cfgs.quadformer.net.prior = if tpc { Prior::Tpc } else { Prior::Gaussian };
@@ -595,6 +580,12 @@ pub fn architecture_ablation(opts: &Options, data: &Dataset) -> Result<Vec<(Stri
 
 /// Runs everything and writes every output; returns the paths written.
 ///
+/// The label-fraction and architecture ablations run alongside the matrix, sharing its
+/// thread pool, so that neither waits for the other's last job. When the matrix includes the
+/// study unit ([`STUDY_CELL`] at seed 0), the ablations take its rows for the default labelled
+/// fraction and the full network, and the amplitude sweep scores with its fitted detectors,
+/// instead of repeating those fits.
+///
 /// # Errors
 /// The first failing stage.
 pub fn reproduce(opts: &Options) -> Result<Vec<PathBuf>> {
@@ -602,25 +593,18 @@ pub fn reproduce(opts: &Options) -> Result<Vec<PathBuf>> {
     let start = Instant::now();
     std::fs::create_dir_all(&opts.out)
         .map_err(|e| ReproduceError::Config(format!("{}: cannot create: {e}", opts.out.display())))?;
-    let records = run_matrix(opts)?;
-    let results: Vec<RunResult> = records.iter().map(|r| r.result.clone()).collect();
-    let mut files = write_outputs(&opts.out, &results)?;
-    files.extend(write_roc_plots(&opts.out, &records)?);
-
-    let mut report = String::new();
-    let (cusum_files, cusum_note) = cusum_post_attack(opts)?;
-    files.extend(cusum_files);
-    // The three studies share one dataset and are independent; each also runs its own fits in
-    // parallel.
+    let matrix_has_study_unit = opts.cells.contains(&STUDY_CELL) && opts.seeds >= 1;
+    let keep = (matrix_has_study_unit && !opts.config.sweep_sigma.is_empty()).then_some((STUDY_CELL, 0));
     let study_data = load_cell(STUDY_CELL, 0, opts)?;
-    let (sweep, (fractions, arch)) = rayon::join(
-        || amplitude_sweep(opts, &study_data),
+    let with_own = !matrix_has_study_unit;
+    let (matrix, (fractions, arch)) = rayon::join(
+        || run_matrix_keeping(opts, keep),
         || {
             rayon::join(
-                || label_fraction_ablation(opts, &study_data),
+                || label_fraction_ablation(opts, &study_data, with_own),
                 || {
                     if opts.methods.contains(&Method::QuadFormer) {
-                        architecture_ablation(opts, &study_data)
+                        architecture_ablation(opts, &study_data, with_own)
                     } else {
                         Ok(Vec::new())
                     }
@@ -628,12 +612,38 @@ pub fn reproduce(opts: &Options) -> Result<Vec<PathBuf>> {
             )
         },
     );
-    let (sweep, modes, sweep_files) = sweep?;
+    let (records, kept) = matrix?;
+    let (mut fractions, mut arch) = (fractions?, arch?);
+    let study_records: Vec<&RunRecord> =
+        records.iter().filter(|r| r.result.cell() == STUDY_CELL && r.result.seed == 0).collect();
+    if matrix_has_study_unit {
+        let learning = |r: &&&RunRecord| opts.methods.iter().any(|m| m.is_learning() && m.name() == r.result.method);
+        if opts.config.ablation_fractions.contains(&opts.config.labelled_fraction) {
+            fractions.extend(
+                study_records.iter().filter(learning).map(|r| (opts.config.labelled_fraction, r.result.clone())),
+            );
+        }
+        if let Some(qf) = study_records.iter().find(|r| r.result.method == Method::QuadFormer.name()) {
+            arch.push((ARCHITECTURES[0].0.to_owned(), qf.result.clone()));
+        }
+    }
+    let method_rank = |name: &str| opts.methods.iter().position(|m| m.name() == name);
+    fractions.sort_by(|a, b| a.0.total_cmp(&b.0).then(method_rank(&a.1.method).cmp(&method_rank(&b.1.method))));
+    arch.sort_by_key(|(name, _)| ARCHITECTURES.iter().position(|(n, _, _)| n == name));
+
+    let results: Vec<RunResult> = records.iter().map(|r| r.result.clone()).collect();
+    let mut files = write_outputs(&opts.out, &results)?;
+    files.extend(write_roc_plots(&opts.out, &records)?);
+    let mut report = String::new();
+    let (cusum_files, cusum_note) = cusum_post_attack(opts)?;
+    files.extend(cusum_files);
+    let (sweep, sweep_files) = amplitude_sweep(opts, &study_data, kept)?;
     files.extend(sweep_files);
-    let (fractions, arch) = (fractions?, arch?);
+    let modes: &[ModeMetrics] =
+        study_records.iter().find(|r| r.result.method == Method::QuadFormer.name()).map_or(&[], |r| &r.modes);
     let wall_s = start.elapsed().as_secs_f64();
 
-    write_report(&mut report, opts, &records, &cusum_note, &sweep, &modes, &fractions, &arch, wall_s);
+    write_report(&mut report, opts, &records, &cusum_note, &sweep, modes, &fractions, &arch, wall_s);
     let report_path = opts.out.join("report.md");
     write_text_atomic(&report_path, &report)?;
     files.push(report_path);
@@ -647,7 +657,7 @@ fn write_report(
     records: &[RunRecord],
     cusum_note: &str,
     sweep: &[SweepPoint],
-    modes: &[ModeRow],
+    modes: &[ModeMetrics],
     fractions: &[(f64, RunResult)],
     arch: &[(String, RunResult)],
     wall_s: f64,
@@ -744,12 +754,38 @@ fn write_report(
             let _ = writeln!(s, "| {}{star} | {:.3} | {:.3} | {:.3} |", m.mode, m.valid_f1, m.test_f1, m.test_auc);
         }
     }
+    write_mode_summary(s, records);
     if !arch.is_empty() {
         let _ = writeln!(s, "\n## Ablation: QUADFormer attention (Model I, exponential, Attack I, seed 0)\n");
         let _ = writeln!(s, "| variant | P | R | F1 | ROC AUC |\n|---|---|---|---|---|");
         for (name, r) in arch {
             let _ = writeln!(s, "| {name} | {:.3} | {:.3} | {:.3} | {:.3} |", r.precision, r.recall, r.f1, r.roc_auc);
         }
+    }
+}
+
+/// The score-mode ablation over every QUADFormer run of the matrix: each mode's validation and
+/// test F1 and test ROC AUC (mean ± std over runs), and how many runs validation chose it for.
+fn write_mode_summary(s: &mut String, records: &[RunRecord]) {
+    let runs: Vec<&RunRecord> = records.iter().filter(|r| !r.modes.is_empty()).collect();
+    let Some(first) = runs.first() else { return };
+    let _ = writeln!(s, "\n## Ablation: QUADFormer score modes over every cell and seed ({} runs)\n", runs.len());
+    let _ = writeln!(s, "Mean ± std over runs, each mode at its own validation threshold.\n");
+    let _ = writeln!(s, "| mode | chosen in | valid F1 | test F1 | test ROC AUC |\n|---|---|---|---|---|");
+    for (i, m) in first.modes.iter().enumerate() {
+        let of = |f: fn(&ModeMetrics) -> f64| -> Vec<f64> {
+            runs.iter().filter_map(|r| r.modes.get(i)).filter(|x| x.mode == m.mode).map(f).collect()
+        };
+        let chosen = runs.iter().filter(|r| r.modes.get(i).is_some_and(|x| x.mode == m.mode && x.chosen)).count();
+        let cell = |v: Vec<f64>| MeanStd::new(&m.mode, &v).map_or_else(|_| "–".to_owned(), |x| format!("{x:.3}"));
+        let _ = writeln!(
+            s,
+            "| {} | {chosen} | {} | {} | {} |",
+            m.mode,
+            cell(of(|x| x.valid_f1)),
+            cell(of(|x| x.test_f1)),
+            cell(of(|x| x.test_auc))
+        );
     }
 }
 

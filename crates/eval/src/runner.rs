@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use baselines::{BhtConfig, Chi2Config, CnnConfig, CusumConfig, LstmConfig, Px4GateConfig, SprtConfig, SvmConfig};
 use ekf_residue::{Detector, Fit, LabelledResidues};
-use quadformer_model::QuadFormerConfig;
+use quadformer_model::{ModeResult, QuadFormerConfig};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
@@ -336,6 +336,25 @@ pub struct RunRecord {
     pub result: RunResult,
     /// ROC curve as `(false-positive rate, true-positive rate)` points, at most 200.
     pub roc: Vec<(f64, f64)>,
+    /// QUADFormer only: every score mode on the same test split (the score-mode ablation).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub modes: Vec<ModeMetrics>,
+}
+
+/// One QUADFormer score mode on the test split, at the mode's own validation threshold.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModeMetrics {
+    /// Mode name ([`quadformer_model::ScoreMode::name`]).
+    pub mode: String,
+    /// Whether validation chose this mode (its scores are the run's scores).
+    pub chosen: bool,
+    /// Validation F1 at the mode's validation threshold.
+    pub valid_f1: f64,
+    /// Test F1 at the same threshold.
+    pub test_f1: f64,
+    /// Test ROC AUC of the mode's scores.
+    pub test_auc: f64,
 }
 
 /// Computes the metrics of a scored test split.
@@ -380,7 +399,7 @@ pub fn run_record(
     {
         roc.push((last.fpr, last.tpr));
     }
-    Ok(RunRecord { key, result, roc })
+    Ok(RunRecord { key, result, roc, modes: Vec::new() })
 }
 
 /// Evaluates per-flight scores and alarms (one vector per flight of `test`) against the labels
@@ -454,8 +473,7 @@ pub fn store_cached(path: &Path, rec: &RunRecord) -> Result<()> {
 /// applied after loading (the labelled fraction, the channel selection).
 ///
 /// # Errors
-/// As [`fit`], [`score_split`], [`run_record`] and [`store_cached`].
-#[allow(clippy::too_many_arguments)]
+/// As [`run_one_keeping`].
 pub fn run_one(
     cache_dir: &Path,
     data_key: &str,
@@ -465,17 +483,84 @@ pub fn run_one(
     cfgs: &MethodConfigs,
     splits: Splits<'_>,
 ) -> Result<RunRecord> {
+    run_one_keeping(cache_dir, data_key, cell, method, seed, cfgs, splits).map(|(rec, _)| rec)
+}
+
+/// [`run_one`], also returning the fitted detector when the run was not cached, for callers
+/// that score more data with it (the amplitude sweep).
+///
+/// # Errors
+/// As [`fit`], [`score_split`], [`run_record`] and [`store_cached`].
+pub fn run_one_keeping(
+    cache_dir: &Path,
+    data_key: &str,
+    cell: Cell,
+    method: Method,
+    seed: u64,
+    cfgs: &MethodConfigs,
+    splits: Splits<'_>,
+) -> Result<(RunRecord, Option<Box<dyn Detector>>)> {
     let cfgs = cfgs.seeded(seed);
     let key = run_key(data_key, method, &cfgs);
     let path = cache_path(cache_dir, cell, method, seed, &key);
     if let Some(rec) = load_cached(&path, &key) {
-        return Ok(rec);
+        return Ok((rec, None));
     }
-    let fitted = fit(method, &cfgs, splits.train, splits.valid)?;
-    let scored = score_split(method, fitted.detector.as_ref(), splits.test)?;
-    let rec = run_record(key, cell, method, seed, splits.test, &scored, fitted.train_s)?;
+    let (fitted, scored, modes) = if method == Method::QuadFormer {
+        fit_and_score_quadformer(&cfgs.quadformer, splits, cell)?
+    } else {
+        let fitted = fit(method, &cfgs, splits.train, splits.valid)?;
+        let scored = score_split(method, fitted.detector.as_ref(), splits.test)?;
+        (fitted, scored, Vec::new())
+    };
+    let mut rec = run_record(key, cell, method, seed, splits.test, &scored, fitted.train_s)?;
+    rec.modes = modes;
     store_cached(&path, &rec)?;
-    Ok(rec)
+    Ok((rec, Some(fitted.detector)))
+}
+
+/// QUADFormer's fit and test scoring, with every score mode evaluated from the same forward
+/// passes (the chosen mode's scores are exactly what [`Detector::score`] returns).
+fn fit_and_score_quadformer(
+    cfg: &QuadFormerConfig,
+    splits: Splits<'_>,
+    cell: Cell,
+) -> Result<(Fitted, ScoredSplit, Vec<ModeMetrics>)> {
+    let name = Method::QuadFormer.name();
+    let start = Instant::now();
+    let qf = cfg.fit(splits.train, splits.valid).map_err(|e| RunError::Fit { method: name, msg: e.to_string() })?;
+    let train_s = start.elapsed().as_secs_f64();
+    let start = Instant::now();
+    let mut per_mode: Vec<(ModeResult, Vec<Vec<f64>>)> = qf.mode_results().iter().map(|r| (*r, Vec::new())).collect();
+    for f in splits.test.flights() {
+        let by_mode = qf.scores_by_mode(f.series()).map_err(|e| RunError::Score { method: name, source: e.into() })?;
+        for ((_, acc), (_, scores)) in per_mode.iter_mut().zip(by_mode) {
+            acc.push(scores);
+        }
+    }
+    let score_s = start.elapsed().as_secs_f64();
+    let chosen = qf.chosen().mode;
+    let alarms_at = |res: &ModeResult, scores: &[Vec<f64>]| -> Vec<Vec<bool>> {
+        scores.iter().map(|s| s.iter().map(|&v| v > res.threshold).collect()).collect()
+    };
+    let mut modes = Vec::with_capacity(per_mode.len());
+    let mut scored = None;
+    for (res, scores) in per_mode {
+        let alarms = alarms_at(&res, &scores);
+        let e = evaluate_split(splits.test, &scores, &alarms, name, cell)?;
+        modes.push(ModeMetrics {
+            mode: res.mode.name().to_owned(),
+            chosen: res.mode == chosen,
+            valid_f1: res.valid_f1,
+            test_f1: e.f1(),
+            test_auc: e.roc.auc(),
+        });
+        if res.mode == chosen {
+            scored = Some(ScoredSplit { scores, alarms, score_s });
+        }
+    }
+    let scored = scored.ok_or(RunError::Fit { method: name, msg: "the chosen mode has no scores".into() })?;
+    Ok((Fitted { detector: Box::new(qf), train_s }, scored, modes))
 }
 
 /// The three splits of one cell.

@@ -5,8 +5,8 @@
 use attack_inject::AttackKind;
 use ekf_residue::residues::ModelKind;
 use eval::dataset::{
-    CacheOutcome, Dataset, DatasetConfig, Split, SplitSteps, StaleReason, ValidDatasetConfig, build, cache_path,
-    load_or_build,
+    CacheOutcome, Dataset, DatasetConfig, Split, SplitSteps, StaleReason, ValidDatasetConfig, build, build_split,
+    cache_path, load_or_build,
 };
 use uav_dynamics::noise::NoiseShape;
 
@@ -45,6 +45,21 @@ fn labels_are_the_attack_intervals_and_fraction_near_target() -> TestResult {
     #[allow(clippy::cast_precision_loss)]
     let rel = (steps as f64 - (total.train + total.valid + total.test) as f64).abs() / 2_800.0;
     assert!(rel < 0.02, "{steps} steps");
+    Ok(())
+}
+
+#[test]
+fn one_split_alone_is_the_same_as_in_the_whole_dataset() -> TestResult {
+    let cfg = tiny(ModelKind::ModelII, AttackKind::Persistent, 4)?;
+    let whole = build(&cfg)?;
+    let test = build_split(&cfg, Split::Test)?;
+    let expected = whole.test()?;
+    assert_eq!(test.flights().len(), expected.flights().len());
+    for (a, b) in test.flights().iter().zip(expected.flights()) {
+        assert_eq!(a.series().t(), b.series().t());
+        assert_eq!(a.series().r(), b.series().r());
+        assert_eq!(a.labels(), b.labels());
+    }
     Ok(())
 }
 
