@@ -580,8 +580,8 @@ impl QuadFormerNet {
     /// instead of two: `λ·TCD(T, C)` with the attention's gradient reversed has the gradient
     /// of `dis_min − dis_max` (prior pulled towards the attention, attention pushed away), and
     /// subtracting its detached value keeps the loss value `2·L_recon + (α₁ + α₂)·L_class`
-    /// that the two phases sum to. About a third faster per training step than
-    /// [`QuadFormerNet::loss_terms`].
+    /// that the two phases sum to. It skips the forward pass of the second discrepancy that
+    /// [`QuadFormerNet::loss_terms`] builds.
     ///
     /// # Errors
     /// candle errors.
