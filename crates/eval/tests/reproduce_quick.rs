@@ -21,7 +21,7 @@ fn micro_options(out: &Path) -> Options {
     }
     config.methods.svm.max_train = 200;
     config.sweep_sigma = vec![5.0];
-    config.ablation_fractions = vec![1.0];
+    config.ablation_fractions = vec![0.1, 1.0];
     Options {
         config,
         quick: true,
@@ -63,6 +63,27 @@ fn quick_matrix_writes_every_output_with_valid_numbers_deterministically() {
     for m in Method::ALL {
         assert!(table1.contains(&format!("| {} |", m.name())), "Table I lacks {}", m.name());
     }
+
+    // QUADFormer's cached runs carry every score mode; the chosen one is the run's own result.
+    let qf_runs: Vec<_> = std::fs::read_dir(dir_a.path().join("runs").join("m1-exponential-a1"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.file_name().unwrap().to_string_lossy().starts_with("quadformer-seed0"))
+        .collect();
+    assert!(!qf_runs.is_empty());
+    for path in qf_runs {
+        let rec: eval::runner::RunRecord = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        assert_eq!(rec.modes.len(), 4, "{}", path.display());
+        let chosen: Vec<_> = rec.modes.iter().filter(|m| m.chosen).collect();
+        assert_eq!(chosen.len(), 1);
+        assert_eq!(chosen[0].test_f1, rec.result.f1, "{}", path.display());
+        assert_eq!(chosen[0].test_auc, rec.result.roc_auc);
+    }
+    // The ablations take the matrix's study-unit rows: 10% (the matrix's fraction) and 100%.
+    let report = std::fs::read_to_string(dir_a.path().join("report.md")).unwrap();
+    assert!(report.contains("| QUADFormer | 10% |") && report.contains("| QUADFormer | 100% |"), "{report}");
+    assert!(report.contains("| full |") && report.contains("| no TPC |") && report.contains("| no DCM |"));
+    assert!(report.contains("score modes over every cell and seed (2 runs)"), "{report}");
 
     reproduce(&micro_options(dir_b.path())).unwrap();
     let a = std::fs::read(dir_a.path().join("results.csv")).unwrap();
