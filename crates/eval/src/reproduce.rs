@@ -26,8 +26,7 @@ use crate::io::write_text_atomic;
 use crate::metrics::{MeanStd, RocCurve};
 use crate::plot::{StatisticTrace, SweepSeries, f1_amplitude_plot, roc_plot, statistic_plot};
 use crate::runner::{
-    Method, MethodConfigs, ModeMetrics, RunError, RunRecord, Splits, evaluate_split, fit, run_one, run_one_keeping,
-    score_split,
+    Method, MethodConfigs, ModeMetrics, RunError, RunRecord, Splits, evaluate_split, fit, run_one, score_split,
 };
 use crate::table::{AttackModel, Cell, NoiseModel, RunResult, UavModel, write_outputs};
 
@@ -321,7 +320,7 @@ pub fn run_matrix_keeping(opts: &Options, keep: Option<(Cell, u64)>) -> Result<(
                 }
                 bar.set_message(format!("{} seed {seed}: {}", cell.slug(), method.name()));
                 let (rec, fitted) =
-                    run_one_keeping(&cache_dir, &data_key, cell, method, seed, &opts.config.methods, splits.splits())?;
+                    run_one(&cache_dir, &data_key, cell, method, seed, &opts.config.methods, splits.splits())?;
                 if let Some(det) = fitted
                     && keep == Some((cell, seed))
                     && let Ok(mut kept) = kept.lock()
@@ -545,7 +544,7 @@ pub fn label_fraction_ablation(
         splits.iter().flat_map(|s| opts.methods.iter().filter(|m| m.is_learning()).map(move |&m| (s, m))).collect();
     jobs.par_iter()
         .map(|((fraction, splits, data_key), m)| {
-            let rec = run_one(&cache, data_key, cell, *m, 0, &opts.config.methods, splits.splits())?;
+            let (rec, _) = run_one(&cache, data_key, cell, *m, 0, &opts.config.methods, splits.splits())?;
             Ok((*fraction, rec.result))
         })
         .collect()
@@ -572,7 +571,7 @@ pub fn architecture_ablation(opts: &Options, data: &Dataset, with_full: bool) ->
             let mut cfgs = opts.config.methods.clone();
             cfgs.quadformer.net.prior = if tpc { Prior::Tpc } else { Prior::Gaussian };
             cfgs.quadformer.net.dcm = dcm;
-            let rec = run_one(&cache, &data_key, cell, Method::QuadFormer, 0, &cfgs, splits.splits())?;
+            let (rec, _) = run_one(&cache, &data_key, cell, Method::QuadFormer, 0, &cfgs, splits.splits())?;
             Ok((name.to_owned(), rec.result))
         })
         .collect()

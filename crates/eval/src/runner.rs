@@ -467,31 +467,16 @@ pub fn store_cached(path: &Path, rec: &RunRecord) -> Result<()> {
     write_text_atomic(path, &text).map_err(|e| cache_err(e.to_string()))
 }
 
-/// Fits, scores and evaluates one `(cell, method, seed)`, or returns its cached record.
+/// Fits, scores and evaluates one `(cell, method, seed)`, or returns its cached record; also
+/// returns the fitted detector when the run was not cached, for callers that score more data
+/// with it (the amplitude sweep).
 ///
 /// `data_key` must identify the training data exactly: the dataset's cache key plus anything
 /// applied after loading (the labelled fraction, the channel selection).
 ///
 /// # Errors
-/// As [`run_one_keeping`].
-pub fn run_one(
-    cache_dir: &Path,
-    data_key: &str,
-    cell: Cell,
-    method: Method,
-    seed: u64,
-    cfgs: &MethodConfigs,
-    splits: Splits<'_>,
-) -> Result<RunRecord> {
-    run_one_keeping(cache_dir, data_key, cell, method, seed, cfgs, splits).map(|(rec, _)| rec)
-}
-
-/// [`run_one`], also returning the fitted detector when the run was not cached, for callers
-/// that score more data with it (the amplitude sweep).
-///
-/// # Errors
 /// As [`fit`], [`score_split`], [`run_record`] and [`store_cached`].
-pub fn run_one_keeping(
+pub fn run_one(
     cache_dir: &Path,
     data_key: &str,
     cell: Cell,
