@@ -72,6 +72,7 @@ pub mod checkpoint;
 pub mod detector;
 pub mod error;
 pub mod init;
+pub mod layers;
 pub mod model;
 pub mod train;
 pub mod window;

@@ -22,20 +22,19 @@
 //! `TCD(T, sg(C))`, so its discrepancy term only moves the prior (`γ`); the max phase uses
 //! `TCD(sg(T), C)`, so its discrepancy term only moves the attention (`W_Q`, `W_K`, embeddings).
 
-use candle_core::{D, DType, Device, Module, Tensor};
-use candle_nn::{Init, Linear, VarBuilder, VarMap};
+use candle_core::{D, DType, Device, Tensor};
+use candle_nn::{Init, VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
 use crate::init::init_vars_seeded;
+use crate::layers::{Dense, Norm, repeat_rows};
 use crate::window::Batch;
 
 /// Lower clamp of the prior's exponent: `exp(−50) ≈ 2e−22` is still a normal `f32`.
 pub const PRIOR_EXP_FLOOR: f64 = -50.0;
 /// Additive guard of the logarithms in the Jensen–Shannon divergence.
 const JS_EPS: f64 = 1e-8;
-/// Layer-norm variance guard (PyTorch default).
-const LN_EPS: f64 = 1e-5;
 
 /// Which prior association the attention is compared with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -222,16 +221,26 @@ pub fn js_divergence(p: &Tensor, q: &Tensor) -> candle_core::Result<Tensor> {
     (kl_pm + kl_qm)? * 0.5
 }
 
-/// [`js_divergence`] of a prior `t` that may broadcast over the batch (`1 × heads × l × l`
+/// [`js_divergence`] of a prior `t` that may be shared by the batch (`1 × heads × l × l`
 /// against `b × heads × l × l`) and an attention map `c`: `ln(t + ε)` is taken before
-/// broadcasting, once instead of once per window.
+/// repeating, once instead of once per window.
 fn js_prior_attention(t: &Tensor, c: &Tensor) -> candle_core::Result<Tensor> {
-    let ln_t = (t + JS_EPS)?.log()?.broadcast_as(c.shape())?;
-    let t = t.broadcast_as(c.shape())?;
+    let ln_t = over_batch(&(t + JS_EPS)?.log()?, c)?;
+    let t = over_batch(t, c)?;
     let ln_m = (((&t + c)? * 0.5)? + JS_EPS)?.log()?;
     let kl_tm = (&t * (ln_t - &ln_m)?)?.sum(D::Minus1)?;
     let kl_cm = (c * ((c + JS_EPS)?.log()? - &ln_m)?)?.sum(D::Minus1)?;
     (kl_tm + kl_cm)? * 0.5
+}
+
+/// `t` repeated to the shape of `c` along the batch axis when `t` is shared by the batch
+/// ([`repeat_rows`]: its gradient is a matrix product, not candle's strided broadcast sum).
+fn over_batch(t: &Tensor, c: &Tensor) -> candle_core::Result<Tensor> {
+    let b = c.dim(0)?;
+    if t.dim(0)? == b {
+        return Ok(t.clone());
+    }
+    repeat_rows(t, b)?.reshape(c.shape())
 }
 
 /// How the gradient of a loss term reaches one of its inputs (the min-max split of
@@ -257,49 +266,18 @@ impl GradFlow {
     }
 }
 
-/// Differentiable layer norm over the last axis with gain and bias.
-fn layer_norm(x: &Tensor, gain: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
-    let mu = x.mean_keepdim(D::Minus1)?;
-    let xc = x.broadcast_sub(&mu)?;
-    let var = xc.sqr()?.mean_keepdim(D::Minus1)?;
-    xc.broadcast_div(&(var + LN_EPS)?.sqrt()?)?.broadcast_mul(gain)?.broadcast_add(bias)
-}
-
-struct Norm {
-    gain: Tensor,
-    bias: Tensor,
-}
-
-impl Norm {
-    fn new(d: usize, vb: VarBuilder) -> candle_core::Result<Self> {
-        Ok(Self {
-            gain: vb.get_with_hints(d, "weight", Init::Const(1.0))?,
-            bias: vb.get_with_hints(d, "bias", Init::Const(0.0))?,
-        })
-    }
-
-    /// `fused` selects candle's fused kernel, which has no backward: inference only.
-    fn forward(&self, x: &Tensor, fused: bool) -> candle_core::Result<Tensor> {
-        if fused {
-            candle_nn::ops::layer_norm(&x.contiguous()?, &self.gain, &self.bias, LN_EPS as f32)
-        } else {
-            layer_norm(x, &self.gain, &self.bias)
-        }
-    }
-}
-
 struct Layer {
-    w_q: Linear,
-    w_k: Linear,
-    w_v: Linear,
-    w_o: Linear,
+    w_q: Dense,
+    w_k: Dense,
+    w_v: Dense,
+    w_o: Dense,
     /// `ln γ`, `heads × l` (TPC only).
     log_gamma: Option<Tensor>,
     /// Width projection of the Gaussian prior (TPC off only).
-    sigma: Option<Linear>,
+    sigma: Option<Dense>,
     norm1: Norm,
-    ff1: Linear,
-    ff2: Linear,
+    ff1: Dense,
+    ff2: Dense,
     norm2: Norm,
 }
 
@@ -309,13 +287,13 @@ pub struct QuadFormerNet {
     len: usize,
     dim: usize,
     varmap: VarMap,
-    embed: Linear,
+    embed: Dense,
     /// Sinusoidal positional encoding, `1 × l × d_model`.
     pos: Tensor,
     layers: Vec<Layer>,
-    recon: Linear,
-    class1: Linear,
-    class2: Linear,
+    recon: Dense,
+    class1: Dense,
+    class2: Dense,
     /// `|j − i|^p`, `1 × l × l`, built once (TPC).
     dist_p: Tensor,
     /// `|j − i|²`, `1 × 1 × l × l`, built once (Gaussian prior).
@@ -348,7 +326,7 @@ impl QuadFormerNet {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
         let d = cfg.d_model;
-        let embed = candle_nn::linear(dim, d, vb.pp("embed"))?;
+        let embed = Dense::new(dim, d, vb.pp("embed"))?;
         let mut layers = Vec::with_capacity(cfg.n_layers);
         for h in 0..cfg.n_layers {
             let vl = vb.pp(format!("layers.{h}"));
@@ -357,28 +335,28 @@ impl QuadFormerNet {
                 Prior::Tpc => {
                     (Some(va.get_with_hints((cfg.n_heads, len), "log_gamma", Init::Const(cfg.gamma_init.ln()))?), None)
                 }
-                Prior::Gaussian => (None, Some(candle_nn::linear(d, cfg.n_heads, va.pp("sigma"))?)),
+                Prior::Gaussian => (None, Some(Dense::new(d, cfg.n_heads, va.pp("sigma"))?)),
             };
             layers.push(Layer {
-                w_q: candle_nn::linear(d, d, va.pp("w_q"))?,
-                w_k: candle_nn::linear(d, d, va.pp("w_k"))?,
-                w_v: candle_nn::linear(d, d, va.pp("w_v"))?,
-                w_o: candle_nn::linear(d, d, va.pp("w_o"))?,
+                w_q: Dense::new(d, d, va.pp("w_q"))?,
+                w_k: Dense::new(d, d, va.pp("w_k"))?,
+                w_v: Dense::new(d, d, va.pp("w_v"))?,
+                w_o: Dense::new(d, d, va.pp("w_o"))?,
                 log_gamma,
                 sigma,
                 norm1: Norm::new(d, vl.pp("norm1"))?,
-                ff1: candle_nn::linear(d, cfg.d_ff, vl.pp("ff1"))?,
-                ff2: candle_nn::linear(cfg.d_ff, d, vl.pp("ff2"))?,
+                ff1: Dense::new(d, cfg.d_ff, vl.pp("ff1"))?,
+                ff2: Dense::new(cfg.d_ff, d, vl.pp("ff2"))?,
                 norm2: Norm::new(d, vl.pp("norm2"))?,
             });
         }
-        let recon = candle_nn::linear(d, dim, vb.pp("recon"))?;
+        let recon = Dense::new(d, dim, vb.pp("recon"))?;
         let class_in = match cfg.class_input {
             ClassInput::Reconstruction => dim,
             ClassInput::Hidden => d,
         };
-        let class1 = candle_nn::linear(class_in, cfg.d_class, vb.pp("class1"))?;
-        let class2 = candle_nn::linear(cfg.d_class, 1, vb.pp("class2"))?;
+        let class1 = Dense::new(class_in, cfg.d_class, vb.pp("class1"))?;
+        let class2 = Dense::new(cfg.d_class, 1, vb.pp("class2"))?;
         init_vars_seeded(&varmap, seed)?;
         // ln γ is rank 2 and was overwritten by the generic rule: reset it to its constant.
         for h in 0..cfg.n_layers {
@@ -466,9 +444,9 @@ impl QuadFormerNet {
     }
 
     /// Anomaly Transformer's Gaussian prior from the layer input `h` (`(b·l) × d`).
-    fn gaussian_prior(&self, sigma_proj: &Linear, h: &Tensor, b: usize) -> candle_core::Result<Tensor> {
+    fn gaussian_prior(&self, sigma_proj: &Dense, h: &Tensor, b: usize, frozen: bool) -> candle_core::Result<Tensor> {
         let heads = self.cfg.n_heads;
-        let s = sigma_proj.forward(h)?.reshape((b, self.len, heads))?.transpose(1, 2)?.contiguous()?;
+        let s = sigma_proj.forward(h, frozen)?.reshape((b, self.len, heads))?.transpose(1, 2)?.contiguous()?;
         // σ = 3^(sigmoid(5s) + 1e−5) − 1 (Anomaly Transformer attn.py).
         let s = (candle_nn::ops::sigmoid(&(s * 5.0)?)? + 1e-5)?;
         let sigma = ((s * 3f64.ln())?.exp()? - 1.0)?.unsqueeze(D::Minus1)?;
@@ -490,23 +468,23 @@ impl QuadFormerNet {
         let (d, heads) = (self.cfg.d_model, self.cfg.n_heads);
         let dh = d / heads;
         let scale = 1.0 / (dh as f64).sqrt();
+        // A frozen network (inference) may use kernels that pass no gradient.
+        let frozen = self.prior_cache.is_some();
         let mut h = self
             .embed
-            .forward(&x.reshape((b * l, m))?)?
+            .forward(&x.reshape((b * l, m))?, frozen)?
             .reshape((b, l, d))?
             .broadcast_add(&self.pos)?
             .reshape((b * l, d))?;
         let split =
             |t: Tensor| -> candle_core::Result<Tensor> { t.reshape((b, l, heads, dh))?.transpose(1, 2)?.contiguous() };
-        // A frozen network (inference) may use candle's fused kernels, which pass no gradient.
-        let fused = self.prior_cache.is_some();
         let mut k_prev: Option<Tensor> = None;
         let mut prior = Vec::with_capacity(self.layers.len());
         let mut attn = Vec::with_capacity(self.layers.len());
         for (idx, layer) in self.layers.iter().enumerate() {
-            let q = split(layer.w_q.forward(&h)?)?;
-            let k = split(layer.w_k.forward(&h)?)?;
-            let v = split(layer.w_v.forward(&h)?)?;
+            let q = split(layer.w_q.forward(&h, frozen)?)?;
+            let k = split(layer.w_k.forward(&h, frozen)?)?;
+            let v = split(layer.w_v.forward(&h, frozen)?)?;
             // eq:first_layer_attention (h = 1 or DCM off) / eq:cross_layer_attention (h > 1).
             let keys = match (&k_prev, self.cfg.dcm) {
                 (Some(kp), true) => kp,
@@ -514,7 +492,7 @@ impl QuadFormerNet {
             };
             let scores = (q.matmul(&keys.t()?)? * scale)?;
             // The fused softmax has no backward (rust-stack.md §4.2): frozen inference only.
-            let c = if fused {
+            let c = if frozen {
                 candle_nn::ops::softmax_last_dim(&scores)?
             } else {
                 candle_nn::ops::softmax(&scores, D::Minus1)?
@@ -522,23 +500,24 @@ impl QuadFormerNet {
             let t = match (&layer.log_gamma, &layer.sigma, &self.prior_cache) {
                 (Some(_), _, Some(cache)) if idx < cache.len() => cache[idx].clone(),
                 (Some(lg), _, _) => self.tpc(lg)?,
-                (None, Some(sp), _) => self.gaussian_prior(sp, &h, b)?,
+                (None, Some(sp), _) => self.gaussian_prior(sp, &h, b, frozen)?,
                 (None, None, _) => candle_core::bail!("layer {idx} has no prior"),
             };
             let out = c.matmul(&v)?.transpose(1, 2)?.reshape((b * l, d))?;
-            let z = layer.norm1.forward(&(layer.w_o.forward(&out)? + &h)?, fused)?;
-            let f = layer.ff2.forward(&layer.ff1.forward(&z)?.gelu_erf()?)?;
-            h = layer.norm2.forward(&(f + &z)?, fused)?;
+            let z = layer.norm1.forward(&(layer.w_o.forward(&out, frozen)? + &h)?, frozen)?;
+            let f = layer.ff2.forward(&layer.ff1.forward(&z, frozen)?.gelu_erf()?, frozen)?;
+            h = layer.norm2.forward(&(f + &z)?, frozen)?;
             prior.push(t);
             attn.push(c);
             k_prev = Some(k);
         }
-        let r_hat = self.recon.forward(&h)?;
+        let r_hat = self.recon.forward(&h, frozen)?;
         let class_in = match self.cfg.class_input {
             ClassInput::Reconstruction => &r_hat,
             ClassInput::Hidden => &h,
         };
-        let logits = self.class2.forward(&self.class1.forward(class_in)?.gelu_erf()?)?.reshape((b, l))?;
+        let logits =
+            self.class2.forward(&self.class1.forward(class_in, frozen)?.gelu_erf()?, frozen)?.reshape((b, l))?;
         Ok(Output { r_hat: r_hat.reshape((b, l, m))?, logits, prior, attn })
     }
 
