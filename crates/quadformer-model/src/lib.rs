@@ -8,7 +8,7 @@
 //! The detector:
 //! - [`model`]: the network — UAV Attack Attention with TPC (eq:TPC) and DCM
 //!   (eq:first_layer_attention, eq:cross_layer_attention), reconstruction and classification
-//!   heads, TCD (Jensen–Shannon, [`model::js_divergence`]) and the min-max losses with the
+//!   heads, TCD (Jensen–Shannon, [`js::js_divergence`], one fused kernel) and the min-max losses with the
 //!   Anomaly Transformer's stop-gradient split ([`model::LossTerms`], [`model::MinMaxTrainer`]);
 //! - [`detector`]: [`QuadFormerConfig`] implements `ekf_residue::Fit`; the fitted
 //!   [`QuadFormerDetector`] implements `Detector` with four scoring modes ([`ScoreMode`]:
@@ -72,6 +72,7 @@ pub mod checkpoint;
 pub mod detector;
 pub mod error;
 pub mod init;
+pub mod js;
 pub mod layers;
 pub mod model;
 pub mod train;

@@ -28,13 +28,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
 use crate::init::init_vars_seeded;
-use crate::layers::{Dense, Norm, repeat_rows};
+use crate::js::js_divergence_with;
+use crate::layers::{Dense, Norm};
 use crate::window::Batch;
 
 /// Lower clamp of the prior's exponent: `exp(−50) ≈ 2e−22` is still a normal `f32`.
 pub const PRIOR_EXP_FLOOR: f64 = -50.0;
-/// Additive guard of the logarithms in the Jensen–Shannon divergence.
-const JS_EPS: f64 = 1e-8;
 
 /// Which prior association the attention is compared with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -208,41 +207,6 @@ pub struct Output {
     pub attn: Vec<Tensor>,
 }
 
-/// Row-wise Jensen–Shannon divergence of two distributions over the last axis (natural log,
-/// so `0 ≤ JS ≤ ln 2`); shape = input shape without the last axis.
-///
-/// # Errors
-/// candle errors (shape mismatch).
-pub fn js_divergence(p: &Tensor, q: &Tensor) -> candle_core::Result<Tensor> {
-    let m = ((p + q)? * 0.5)?;
-    let ln_m = (&m + JS_EPS)?.log()?;
-    let kl_pm = (p * ((p + JS_EPS)?.log()? - &ln_m)?)?.sum(D::Minus1)?;
-    let kl_qm = (q * ((q + JS_EPS)?.log()? - &ln_m)?)?.sum(D::Minus1)?;
-    (kl_pm + kl_qm)? * 0.5
-}
-
-/// [`js_divergence`] of a prior `t` that may be shared by the batch (`1 × heads × l × l`
-/// against `b × heads × l × l`) and an attention map `c`: `ln(t + ε)` is taken before
-/// repeating, once instead of once per window.
-fn js_prior_attention(t: &Tensor, c: &Tensor) -> candle_core::Result<Tensor> {
-    let ln_t = over_batch(&(t + JS_EPS)?.log()?, c)?;
-    let t = over_batch(t, c)?;
-    let ln_m = (((&t + c)? * 0.5)? + JS_EPS)?.log()?;
-    let kl_tm = (&t * (ln_t - &ln_m)?)?.sum(D::Minus1)?;
-    let kl_cm = (c * ((c + JS_EPS)?.log()? - &ln_m)?)?.sum(D::Minus1)?;
-    (kl_tm + kl_cm)? * 0.5
-}
-
-/// `t` repeated to the shape of `c` along the batch axis when `t` is shared by the batch
-/// ([`repeat_rows`]: its gradient is a matrix product, not candle's strided broadcast sum).
-fn over_batch(t: &Tensor, c: &Tensor) -> candle_core::Result<Tensor> {
-    let b = c.dim(0)?;
-    if t.dim(0)? == b {
-        return Ok(t.clone());
-    }
-    repeat_rows(t, b)?.reshape(c.shape())
-}
-
 /// How the gradient of a loss term reaches one of its inputs (the min-max split of
 /// Anomaly Transformer's association discrepancy).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -251,19 +215,8 @@ pub enum GradFlow {
     Pass,
     /// Stop-gradient (`detach`): the input is a constant.
     Stop,
-    /// The gradient passes with its sign flipped: the input enters as `2·sg(x) − x`, whose
-    /// value is exactly `x`.
+    /// The gradient passes with its sign flipped (a gradient-reversal layer).
     Reverse,
-}
-
-impl GradFlow {
-    fn apply(self, x: &Tensor) -> candle_core::Result<Tensor> {
-        match self {
-            GradFlow::Pass => Ok(x.clone()),
-            GradFlow::Stop => Ok(x.detach()),
-            GradFlow::Reverse => x.detach().affine(2.0, 0.0)? - x,
-        }
-    }
 }
 
 struct Layer {
@@ -530,7 +483,7 @@ impl QuadFormerNet {
     pub fn tcd(out: &Output, prior: GradFlow, attn: GradFlow) -> candle_core::Result<Tensor> {
         let mut acc: Option<Tensor> = None;
         for (t, c) in out.prior.iter().zip(&out.attn) {
-            let js = js_prior_attention(&prior.apply(t)?, &attn.apply(c)?)?.mean(1)?;
+            let js = js_divergence_with(t, c, prior, attn)?.mean(1)?;
             acc = Some(match acc {
                 Some(a) => (a + js)?,
                 None => js,
