@@ -5,7 +5,7 @@
 //! candle 0.11 back-propagates a broadcast by summing the gradient over the broadcast axis, and
 //! for any axis but the last that sum is a scalar loop with an integer division per element.
 //! With every bias, norm gain and the batch-shared TPC prior broadcast over the `b·l` rows of a
-//! batch, those sums took about 13 % of a training step (perf, `examples/profile_train.rs`).
+//! batch, those sums took about 13 % of a training step (perf, `examples/profile.rs train`).
 //! Repeating a row vector `v` as the rank-1 product `1ₙ v` gives the same values, and its
 //! gradient `1ₙᵀ g` is one vectorised matrix product.
 //!
