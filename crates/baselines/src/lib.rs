@@ -32,6 +32,7 @@ pub mod common;
 pub mod cusum;
 pub mod error;
 pub mod features;
+pub mod lstm;
 pub mod nn;
 pub mod px4_gate;
 pub mod sprt;

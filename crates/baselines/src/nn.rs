@@ -18,12 +18,12 @@
 //!   convolutions are causal (`k − 1` zeros on the left only), so a step's logit depends on
 //!   the last `2k − 1` steps and the streaming detector (last step of the latest window) agrees
 //!   with the stitched batch score except where a window start cuts that history.
-//! - LSTM: one forward `LSTM(m→h)` over the window, `h = 64`, then `Linear(h→1)` on every
-//!   hidden state (rust-stack.md §3 LSTM probe). Only the past inside the window is seen.
+//! - LSTM: one forward `LSTM(m→h)` over the window ([`crate::lstm`]), `h = 64`, then
+//!   `Linear(h→1)` on every hidden state (rust-stack.md §3 LSTM probe). Only the past inside the
+//!   window is seen.
 
 use candle_core::{D, DType, Device, Module, Tensor};
-use candle_nn::rnn::{LSTMConfig, RNN};
-use candle_nn::{Conv1d, Conv1dConfig, LSTM, Linear, VarBuilder, VarMap};
+use candle_nn::{Conv1d, Conv1dConfig, Linear, VarBuilder, VarMap};
 use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
 use quadformer_model::model::masked_bce_with_logits;
 use quadformer_model::{
@@ -33,6 +33,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::common::{fit_channels, labelled_valid};
 use crate::error::{BaselineError, Result};
+use crate::lstm::LstmLayer;
 
 /// Windows per forward pass when scoring.
 const SCORE_BATCH: usize = 64;
@@ -133,23 +134,19 @@ impl PerStepNet for CnnNet {
 /// The LSTM of the module docs.
 #[derive(Debug, Clone)]
 pub struct LstmNet {
-    lstm: LSTM,
+    lstm: LstmLayer,
     head: Linear,
 }
 
 impl LstmNet {
     fn new(m: usize, h: usize, vb: VarBuilder) -> candle_core::Result<Self> {
-        Ok(Self {
-            lstm: candle_nn::lstm(m, h, LSTMConfig::default(), vb.pp("lstm"))?,
-            head: candle_nn::linear(h, 1, vb.pp("head"))?,
-        })
+        Ok(Self { lstm: LstmLayer::new(m, h, vb.pp("lstm"))?, head: candle_nn::linear(h, 1, vb.pp("head"))? })
     }
 }
 
 impl PerStepNet for LstmNet {
     fn logits(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        let states = self.lstm.seq(&x.contiguous()?)?;
-        let h = self.lstm.states_to_tensor(&states)?;
+        let h = self.lstm.forward(x)?;
         self.head.forward(&h)?.squeeze(D::Minus1)
     }
 }
