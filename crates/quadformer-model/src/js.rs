@@ -140,18 +140,19 @@ impl CustomOp2 for JsDivergence {
         let geo = geometry(p.shape(), q.shape())?;
         let to_vec = |t: &Tensor| t.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>();
         let (pv, qv, gv) = (to_vec(p)?, to_vec(q)?, to_vec(grad)?);
-        let ln_p: Vec<f32> = pv.iter().map(|&x| ln_eps(x)).collect();
+        // ln(p + ε) is needed only for p's own gradient.
+        let ln_p: Vec<f32> = if p_sign.is_some() { pv.iter().map(|&x| ln_eps(x)).collect() } else { Vec::new() };
         let mut dp = p_sign.map(|_| vec![0f32; pv.len()]);
         let mut dq = q_sign.map(|_| vec![0f32; qv.len()]);
         for (r, (q_row, &g_row)) in qv.chunks_exact(geo.len).zip(&gv).enumerate() {
             let off = (r % geo.p_rows) * geo.len;
-            let (p_row, lp_row) = (&pv[off..off + geo.len], &ln_p[off..off + geo.len]);
+            let p_row = &pv[off..off + geo.len];
             let half_g = 0.5 * g_row;
-            for (j, ((&pj, &lpj), &qj)) in p_row.iter().zip(lp_row).zip(q_row).enumerate() {
+            for (j, (&pj, &qj)) in p_row.iter().zip(q_row).enumerate() {
                 let m = 0.5 * (pj + qj);
                 let (lm, rm) = (ln_eps(m), m / (m + JS_EPS));
                 if let (Some(d), Some(s)) = (dp.as_mut(), p_sign) {
-                    d[off + j] += s * half_g * (lpj - lm + pj / (pj + JS_EPS) - rm);
+                    d[off + j] += s * half_g * (ln_p[off + j] - lm + pj / (pj + JS_EPS) - rm);
                 }
                 if let (Some(d), Some(s)) = (dq.as_mut(), q_sign) {
                     d[r * geo.len + j] = s * half_g * (ln_eps(qj) - lm + qj / (qj + JS_EPS) - rm);
