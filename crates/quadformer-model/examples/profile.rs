@@ -7,6 +7,7 @@
 use std::time::Instant;
 
 use candle_core::{D, Device, Tensor};
+use quadformer_model::fused;
 use quadformer_model::model::masked_bce_with_logits;
 use quadformer_model::{Batch, GradFlow, LossConfig, NetConfig, QuadFormerNet, tune_allocator};
 
@@ -84,5 +85,26 @@ fn train() -> Result<(), Box<dyn std::error::Error>> {
         let class = masked_bce_with_logits(&out.logits, &batch.y, &batch.mask, batch.n_labelled)?;
         (recon + class)?.backward()
     })?;
+    // The element-wise blocks of one step, forward and backward, at their training sizes.
+    let var = |dims: &[usize]| -> candle_core::Result<candle_core::Var> {
+        let n: usize = dims.iter().product();
+        let v: Vec<f32> = (0..n).map(|i| ((i * 7919) % 1000) as f32 / 300.0 - 1.5).collect();
+        candle_core::Var::from_vec(v, dims, &Device::Cpu)
+    };
+    let ff = var(&[b * l, 128])?;
+    time("gelu 3200x128 + backward (candle)", n, || ff.gelu_erf()?.sum_all()?.backward())?;
+    time("gelu 3200x128 + backward (fused)", n, || fused::gelu(&ff)?.sum_all()?.backward())?;
+    let sc = var(&[b, 1, l, l])?;
+    time("softmax 32x100x100 + backward (candle)", n, || {
+        candle_nn::ops::softmax(&sc, D::Minus1)?.sum_all()?.backward()
+    })?;
+    time("softmax 32x100x100 + backward (fused)", n, || fused::softmax_last_dim(&sc)?.sum_all()?.backward())?;
+    let hid = var(&[b * l, 64])?;
+    let norm_vm = candle_nn::VarMap::new();
+    let norm = quadformer_model::layers::Norm::new(
+        64,
+        candle_nn::VarBuilder::from_varmap(&norm_vm, candle_core::DType::F32, &Device::Cpu),
+    )?;
+    time("norm 3200x64 + backward (fused)", n, || norm.forward(&hid)?.sqr()?.sum_all()?.backward())?;
     Ok(())
 }

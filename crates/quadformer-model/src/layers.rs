@@ -1,6 +1,6 @@
-//! Building blocks of the QUADFormer network whose gradients stay matrix products: a dense
-//! layer and a layer norm that repeat their bias and gain over the rows with
-//! [`repeat_rows`] instead of candle's `broadcast_add`/`broadcast_mul`.
+//! Building blocks of the QUADFormer network: a dense layer whose bias gradient is a matrix
+//! product (it repeats its bias over the rows with [`repeat_rows`] instead of candle's
+//! `broadcast_add`), and a layer norm computed by one fused kernel ([`crate::fused`]).
 //!
 //! candle 0.11 back-propagates a broadcast by summing the gradient over the broadcast axis, and
 //! for any axis but the last that sum is a scalar loop with an integer division per element.
@@ -13,11 +13,11 @@
 //! PyTorch layer norm, so checkpoints and the seeded initialisation ([`crate::init`]) are
 //! unchanged.
 
-use candle_core::{D, Tensor};
+use candle_core::Tensor;
 use candle_nn::{Init, VarBuilder};
 
 /// Layer-norm variance guard (PyTorch default).
-const LN_EPS: f64 = 1e-5;
+const LN_EPS: f32 = 1e-5;
 
 /// `v` (any shape, `d` elements) repeated over `n` rows: `n × d`, equal to
 /// `v.reshape((1, d)).broadcast_as((n, d))`, with a gradient computed as a matrix product
@@ -81,21 +81,13 @@ impl Norm {
         })
     }
 
-    /// The normalised rows. `frozen` (inference) selects candle's fused kernel, which is faster
-    /// but has no backward (shared/reference/rust-stack.md §4).
+    /// The normalised rows ([`crate::fused::layer_norm`], one kernel forward and backward, in
+    /// training and inference alike).
     ///
     /// # Errors
     /// candle errors.
-    pub fn forward(&self, x: &Tensor, frozen: bool) -> candle_core::Result<Tensor> {
-        if frozen {
-            return candle_nn::ops::layer_norm(&x.contiguous()?, &self.gain, &self.bias, LN_EPS as f32);
-        }
-        let n = x.dim(0)?;
-        let mu = x.mean_keepdim(D::Minus1)?;
-        let xc = x.broadcast_sub(&mu)?;
-        let var = xc.sqr()?.mean_keepdim(D::Minus1)?;
-        let xn = xc.broadcast_div(&(var + LN_EPS)?.sqrt()?)?;
-        (xn * repeat_rows(&self.gain, n)?)? + repeat_rows(&self.bias, n)?
+    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        crate::fused::layer_norm(x, &self.gain, &self.bias, LN_EPS)
     }
 }
 
@@ -145,8 +137,7 @@ mod tests {
         let y = dense.forward(&x, false).unwrap();
         assert!(close(&y, &dense.forward(&x, true).unwrap()) < 1e-6);
         assert!(close(&y, &candle_core::Module::forward(&linear, &x).unwrap()) < 1e-6);
-        let fused = norm.forward(&y, true).unwrap();
-        let ours = norm.forward(&y, false).unwrap();
-        assert!(close(&ours, &fused) < 1e-5);
+        let candle = candle_nn::ops::layer_norm(&y, data["n.weight"].as_tensor(), data["n.bias"].as_tensor(), LN_EPS);
+        assert!(close(&norm.forward(&y).unwrap(), &candle.unwrap()) < 1e-5);
     }
 }

@@ -10,6 +10,8 @@
 //!   (eq:first_layer_attention, eq:cross_layer_attention), reconstruction and classification
 //!   heads, TCD (Jensen–Shannon, [`js::js_divergence`], one fused kernel) and the min-max losses with the
 //!   Anomaly Transformer's stop-gradient split ([`model::LossTerms`], [`model::MinMaxTrainer`]);
+//!   its dense and norm layers are in [`layers`], and its GELU, softmax and layer norm are
+//!   single kernels with closed-form backward passes ([`fused`]);
 //! - [`detector`]: [`QuadFormerConfig`] implements `ekf_residue::Fit`; the fitted
 //!   [`QuadFormerDetector`] implements `Detector` with four scoring modes ([`ScoreMode`]:
 //!   alg:alg2's `softmax(−TCD)`, the Anomaly Transformer criterion, the classifier probability,
@@ -71,6 +73,7 @@ pub mod alloc;
 pub mod checkpoint;
 pub mod detector;
 pub mod error;
+pub mod fused;
 pub mod init;
 pub mod js;
 pub mod layers;

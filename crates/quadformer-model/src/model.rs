@@ -12,9 +12,9 @@
 //! `Q = R W_Q`, `K = R W_K`, `V = R W_V`; `C¹ = softmax(Q¹K¹ᵀ/√d)`, `Cʰ = softmax(QʰKʰ⁻¹ᵀ/√d)`
 //! for `h > 1` (DCM; switchable off = own keys); `T_{ij} = exp(−γ_i |j−i|^p) / Σ_k …` with a
 //! learnable width `γ` per layer, head and position (TPC; switchable off = the Anomaly
-//! Transformer's Gaussian prior with an input-dependent width). The hand-written layer norm and
-//! `candle_nn::ops::softmax` keep gradients flowing (candle's fused `LayerNorm` and
-//! `softmax_last_dim` have no backward, shared/reference/rust-stack.md §4). The exponent of the
+//! Transformer's Gaussian prior with an input-dependent width). The layer norm, softmax and GELU
+//! are the kernels of [`crate::fused`], which have backward passes (candle's fused `LayerNorm`
+//! and `softmax_last_dim` have none, shared/reference/rust-stack.md §4). The exponent of the
 //! prior is clamped at [`PRIOR_EXP_FLOOR`] so that far-apart steps never produce subnormal
 //! results (slow on this CPU) while their weight stays negligible.
 //!
@@ -27,6 +27,7 @@ use candle_nn::{Init, VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
+use crate::fused::{gelu, softmax_last_dim};
 use crate::init::init_vars_seeded;
 use crate::js::js_divergence_with;
 use crate::layers::{Dense, Norm};
@@ -363,7 +364,7 @@ impl QuadFormerNet {
     }
 
     /// Switches to inference: precomputes the TPC priors (they depend only on `γ`) and lets the
-    /// forward pass use candle's fused layer-norm and softmax kernels (faster, no backward).
+    /// dense layers add their biases by a plain broadcast (faster forward, slower backward).
     /// Call after the last change of the variables; [`QuadFormerNet::thaw`] switches back.
     ///
     /// # Errors
@@ -421,7 +422,7 @@ impl QuadFormerNet {
         let (d, heads) = (self.cfg.d_model, self.cfg.n_heads);
         let dh = d / heads;
         let scale = 1.0 / (dh as f64).sqrt();
-        // A frozen network (inference) may use kernels that pass no gradient.
+        // A frozen network (inference) takes the forward-only fast paths.
         let frozen = self.prior_cache.is_some();
         let mut h = self
             .embed
@@ -444,12 +445,7 @@ impl QuadFormerNet {
                 _ => &k,
             };
             let scores = (q.matmul(&keys.t()?)? * scale)?;
-            // The fused softmax has no backward (rust-stack.md §4.2): frozen inference only.
-            let c = if frozen {
-                candle_nn::ops::softmax_last_dim(&scores)?
-            } else {
-                candle_nn::ops::softmax(&scores, D::Minus1)?
-            };
+            let c = softmax_last_dim(&scores)?;
             let t = match (&layer.log_gamma, &layer.sigma, &self.prior_cache) {
                 (Some(_), _, Some(cache)) if idx < cache.len() => cache[idx].clone(),
                 (Some(lg), _, _) => self.tpc(lg)?,
@@ -457,9 +453,9 @@ impl QuadFormerNet {
                 (None, None, _) => candle_core::bail!("layer {idx} has no prior"),
             };
             let out = c.matmul(&v)?.transpose(1, 2)?.reshape((b * l, d))?;
-            let z = layer.norm1.forward(&(layer.w_o.forward(&out, frozen)? + &h)?, frozen)?;
-            let f = layer.ff2.forward(&layer.ff1.forward(&z, frozen)?.gelu_erf()?, frozen)?;
-            h = layer.norm2.forward(&(f + &z)?, frozen)?;
+            let z = layer.norm1.forward(&(layer.w_o.forward(&out, frozen)? + &h)?)?;
+            let f = layer.ff2.forward(&gelu(&layer.ff1.forward(&z, frozen)?)?, frozen)?;
+            h = layer.norm2.forward(&(f + &z)?)?;
             prior.push(t);
             attn.push(c);
             k_prev = Some(k);
@@ -469,8 +465,7 @@ impl QuadFormerNet {
             ClassInput::Reconstruction => &r_hat,
             ClassInput::Hidden => &h,
         };
-        let logits =
-            self.class2.forward(&self.class1.forward(class_in, frozen)?.gelu_erf()?, frozen)?.reshape((b, l))?;
+        let logits = self.class2.forward(&gelu(&self.class1.forward(class_in, frozen)?)?, frozen)?.reshape((b, l))?;
         Ok(Output { r_hat: r_hat.reshape((b, l, m))?, logits, prior, attn })
     }
 

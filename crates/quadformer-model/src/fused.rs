@@ -1,0 +1,367 @@
+//! Element-wise blocks of the QUADFormer layer as single candle custom ops with closed-form
+//! backward passes: the erf GELU of the feed-forward and classification heads, the softmax of
+//! the attention `C` (eq:first_layer_attention) and the layer norm of `Norm(·)`.
+//!
+//! Composed from candle's element-wise ops these three took about half of a training step
+//! (`examples/profile.rs train`, batch 32): the composed GELU backward alone is nine passes over
+//! every `b·l × d_ff` activation, each allocating its result, and candle's fused softmax and
+//! layer-norm kernels have no backward at all (shared/reference/rust-stack.md §4). Each op
+//! here makes one pass forward and one backward, and works in training and inference alike.
+//!
+//! Gradients (per row, `g` the incoming gradient):
+//! - GELU `y = x Φ(x)`, `Φ(x) = ½(1 + erf(x/√2))`: `∂y/∂x = Φ(x) + x φ(x)`,
+//!   `φ(x) = e^{−x²/2}/√(2π)`. The forward values are those of candle's `gelu_erf`
+//!   (the same `erf_f32`).
+//! - softmax `yⱼ = e^{sⱼ}/Σₖ e^{sₖ}`: `∂/∂sⱼ = yⱼ (gⱼ − Σₖ gₖ yₖ)`.
+//! - layer norm `yⱼ = x̂ⱼ γⱼ + βⱼ`, `x̂ = (x − μ)/σ`, `σ = √(var + ε)`:
+//!   `∂/∂x = (ĝ − mean(ĝ) − x̂ · mean(ĝ ⊙ x̂))/σ` with `ĝ = g ⊙ γ`; `∂/∂γ = Σ_rows g ⊙ x̂`,
+//!   `∂/∂β = Σ_rows g`.
+//!
+//! The backward passes return constants (no second derivatives), which is all training needs.
+//! Every op takes `f32` tensors on the CPU and is an error otherwise.
+
+use candle_core::{CpuStorage, CustomOp1, CustomOp3, Layout, Shape, Storage, Tensor};
+
+/// `1/√(2π)`.
+const FRAC_1_SQRT_2PI: f32 = 0.398_942_3;
+
+/// The erf GELU `x Φ(x)`, element-wise; values equal candle's `gelu_erf`.
+///
+/// # Errors
+/// A dtype other than `f32`, a device other than the CPU.
+pub fn gelu(x: &Tensor) -> candle_core::Result<Tensor> {
+    let x = x.contiguous()?;
+    if x.track_op() { x.apply_op1(Gelu) } else { x.apply_op1_no_bwd(&Gelu) }
+}
+
+/// Softmax over the last axis.
+///
+/// # Errors
+/// A dtype other than `f32`, a device other than the CPU, a rank-0 or empty last axis.
+pub fn softmax_last_dim(x: &Tensor) -> candle_core::Result<Tensor> {
+    let x = x.contiguous()?;
+    if x.track_op() { x.apply_op1(Softmax) } else { x.apply_op1_no_bwd(&Softmax) }
+}
+
+/// Layer norm of the rows of `x` (`n × d`) with gain `γ` and bias `β` (both `d`), variance
+/// guard `eps`.
+///
+/// # Errors
+/// Shapes that do not fit, a dtype other than `f32`, a device other than the CPU.
+pub fn layer_norm(x: &Tensor, gain: &Tensor, bias: &Tensor, eps: f32) -> candle_core::Result<Tensor> {
+    let (x, gain, bias) = (x.contiguous()?, gain.contiguous()?, bias.contiguous()?);
+    let op = LayerNorm { eps };
+    if x.track_op() || gain.track_op() || bias.track_op() {
+        x.apply_op3(&gain, &bias, op)
+    } else {
+        x.apply_op3_no_bwd(&gain, &bias, &op)
+    }
+}
+
+/// The contiguous `f32` elements of a storage.
+fn f32_slice<'a>(op: &str, s: &'a CpuStorage, l: &Layout) -> candle_core::Result<&'a [f32]> {
+    let CpuStorage::F32(v) = s else { candle_core::bail!("{op}: only f32 is supported") };
+    let Some((start, end)) = l.contiguous_offsets() else { candle_core::bail!("{op}: non-contiguous input") };
+    Ok(&v[start..end])
+}
+
+/// Calls `f` with the `f32` elements of `t` in row-major order (copied only when `t` is not
+/// contiguous, e.g. a broadcast gradient).
+fn with_f32<R>(op: &str, t: &Tensor, f: impl FnOnce(&[f32]) -> candle_core::Result<R>) -> candle_core::Result<R> {
+    let t = t.contiguous()?;
+    let (storage, layout) = t.storage_and_layout();
+    let Storage::Cpu(cpu) = &*storage else { candle_core::bail!("{op}: only the CPU is supported") };
+    f(f32_slice(op, cpu, layout)?)
+}
+
+/// Length of the last axis, which must be non-empty.
+fn last_dim(op: &str, shape: &Shape) -> candle_core::Result<usize> {
+    match shape.dims().last() {
+        Some(&d) if d > 0 => Ok(d),
+        _ => candle_core::bail!("{op}: needs a non-empty last axis, got shape {shape:?}"),
+    }
+}
+
+struct Gelu;
+
+impl CustomOp1 for Gelu {
+    fn name(&self) -> &'static str {
+        "fused-gelu"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+        let x = f32_slice(self.name(), s, l)?;
+        let y = x
+            .iter()
+            .map(|&v| (candle_core::cpu::erf::erf_f32(v * std::f32::consts::FRAC_1_SQRT_2) + 1.0) * 0.5 * v)
+            .collect();
+        Ok((CpuStorage::F32(y), l.shape().clone()))
+    }
+
+    fn bwd(&self, arg: &Tensor, res: &Tensor, grad: &Tensor) -> candle_core::Result<Option<Tensor>> {
+        let dx = with_f32(self.name(), arg, |x| {
+            with_f32(self.name(), res, |y| {
+                with_f32(self.name(), grad, |g| {
+                    Ok(x.iter()
+                        .zip(y)
+                        .zip(g)
+                        .map(|((&x, &y), &g)| {
+                            // Φ(x) = y/x reuses the forward's erf; Φ(0) = ½.
+                            let cdf = if x == 0.0 { 0.5 } else { y / x };
+                            g * (cdf + x * FRAC_1_SQRT_2PI * (-0.5 * x * x).exp())
+                        })
+                        .collect::<Vec<f32>>())
+                })
+            })
+        })?;
+        Ok(Some(Tensor::from_vec(dx, arg.shape(), arg.device())?))
+    }
+}
+
+struct Softmax;
+
+impl CustomOp1 for Softmax {
+    fn name(&self) -> &'static str {
+        "fused-softmax"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+        let len = last_dim(self.name(), l.shape())?;
+        let x = f32_slice(self.name(), s, l)?;
+        let mut y = vec![0f32; x.len()];
+        for (xr, yr) in x.chunks_exact(len).zip(y.chunks_exact_mut(len)) {
+            let max = xr.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            for (yj, &xj) in yr.iter_mut().zip(xr) {
+                *yj = (xj - max).exp();
+            }
+            let sum: f32 = yr.iter().sum();
+            for yj in yr.iter_mut() {
+                *yj /= sum;
+            }
+        }
+        Ok((CpuStorage::F32(y), l.shape().clone()))
+    }
+
+    fn bwd(&self, arg: &Tensor, res: &Tensor, grad: &Tensor) -> candle_core::Result<Option<Tensor>> {
+        let len = last_dim(self.name(), res.shape())?;
+        let dx = with_f32(self.name(), res, |y| {
+            with_f32(self.name(), grad, |g| {
+                let mut dx = vec![0f32; y.len()];
+                for ((yr, gr), dr) in y.chunks_exact(len).zip(g.chunks_exact(len)).zip(dx.chunks_exact_mut(len)) {
+                    let dot: f32 = yr.iter().zip(gr).map(|(a, b)| a * b).sum();
+                    for ((d, &yj), &gj) in dr.iter_mut().zip(yr).zip(gr) {
+                        *d = yj * (gj - dot);
+                    }
+                }
+                Ok(dx)
+            })
+        })?;
+        Ok(Some(Tensor::from_vec(dx, arg.shape(), arg.device())?))
+    }
+}
+
+struct LayerNorm {
+    eps: f32,
+}
+
+impl LayerNorm {
+    fn check(&self, x: &Shape, gain: &Shape, bias: &Shape) -> candle_core::Result<usize> {
+        let d = last_dim(self.name(), x)?;
+        if gain.elem_count() != d || bias.elem_count() != d {
+            candle_core::bail!("{}: rows of width {d}, gain {gain:?}, bias {bias:?}", self.name())
+        }
+        Ok(d)
+    }
+
+    /// Mean and `1/σ` of one row.
+    fn moments(&self, row: &[f32]) -> (f32, f32) {
+        let n = row.len() as f32;
+        let mu = row.iter().sum::<f32>() / n;
+        let var = row.iter().map(|v| (v - mu) * (v - mu)).sum::<f32>() / n;
+        (mu, 1.0 / (var + self.eps).sqrt())
+    }
+}
+
+impl CustomOp3 for LayerNorm {
+    fn name(&self) -> &'static str {
+        "fused-layer-norm"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let d = self.check(l1.shape(), l2.shape(), l3.shape())?;
+        let (x, gain, bias) =
+            (f32_slice(self.name(), s1, l1)?, f32_slice(self.name(), s2, l2)?, f32_slice(self.name(), s3, l3)?);
+        let mut y = vec![0f32; x.len()];
+        for (xr, yr) in x.chunks_exact(d).zip(y.chunks_exact_mut(d)) {
+            let (mu, inv_sigma) = self.moments(xr);
+            for (((yj, &xj), &gj), &bj) in yr.iter_mut().zip(xr).zip(gain).zip(bias) {
+                *yj = (xj - mu) * inv_sigma * gj + bj;
+            }
+        }
+        Ok((CpuStorage::F32(y), l1.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        gain: &Tensor,
+        bias: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let d = self.check(x.shape(), gain.shape(), bias.shape())?;
+        let (dx, dgain, dbias) = with_f32(self.name(), x, |xv| {
+            with_f32(self.name(), gain, |gamma| {
+                with_f32(self.name(), grad, |g| {
+                    let mut dx = vec![0f32; xv.len()];
+                    let (mut dgain, mut dbias) = (vec![0f32; d], vec![0f32; d]);
+                    let mut xhat = vec![0f32; d];
+                    let mut ghat = vec![0f32; d];
+                    for ((xr, gr), dr) in xv.chunks_exact(d).zip(g.chunks_exact(d)).zip(dx.chunks_exact_mut(d)) {
+                        let (mu, inv_sigma) = self.moments(xr);
+                        for j in 0..d {
+                            xhat[j] = (xr[j] - mu) * inv_sigma;
+                            ghat[j] = gr[j] * gamma[j];
+                            dgain[j] += gr[j] * xhat[j];
+                            dbias[j] += gr[j];
+                        }
+                        let mean_g = ghat.iter().sum::<f32>() / d as f32;
+                        let mean_gx = ghat.iter().zip(&xhat).map(|(a, b)| a * b).sum::<f32>() / d as f32;
+                        for j in 0..d {
+                            dr[j] = (ghat[j] - mean_g - xhat[j] * mean_gx) * inv_sigma;
+                        }
+                    }
+                    Ok((dx, dgain, dbias))
+                })
+            })
+        })?;
+        Ok((
+            Some(Tensor::from_vec(dx, x.shape(), x.device())?),
+            Some(Tensor::from_vec(dgain, gain.shape(), gain.device())?),
+            Some(Tensor::from_vec(dbias, bias.shape(), bias.device())?),
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use candle_core::{D, Device, Var};
+    use proptest::prelude::*;
+
+    use super::*;
+
+    /// `max |a − b| / (1 + max |b|)`.
+    fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
+        let max_abs = |t: &Tensor| t.abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f32>().unwrap();
+        max_abs(&(a - b).unwrap()) / (1.0 + max_abs(b))
+    }
+
+    fn var(v: &[f32], dims: &[usize]) -> Var {
+        Var::from_slice(v, dims, &Device::Cpu).unwrap()
+    }
+
+    /// A weighting of the outputs, so that gradients differ per element.
+    fn weighted_sum(t: &Tensor) -> Tensor {
+        let n = t.elem_count();
+        let w =
+            Tensor::from_vec((0..n).map(|i| 0.5 + (i % 7) as f32 * 0.3).collect(), t.shape(), &Device::Cpu).unwrap();
+        (t * w).unwrap().sum_all().unwrap()
+    }
+
+    /// Value and gradient differences between `ours` and `theirs` applied to one variable.
+    fn compare1(x: &Var, ours: impl Fn(&Tensor) -> Tensor, theirs: impl Fn(&Tensor) -> Tensor) -> (f32, f32) {
+        let (a, b) = (ours(x.as_tensor()), theirs(x.as_tensor()));
+        let (ga, gb) = (weighted_sum(&a).backward().unwrap(), weighted_sum(&b).backward().unwrap());
+        (max_diff(&a, &b), max_diff(ga.get(x).unwrap(), gb.get(x).unwrap()))
+    }
+
+    /// The layer norm composed from candle's ops (the definition the kernel replaces).
+    fn composed_norm(x: &Tensor, gain: &Tensor, bias: &Tensor, eps: f64) -> Tensor {
+        let mu = x.mean_keepdim(D::Minus1).unwrap();
+        let xc = x.broadcast_sub(&mu).unwrap();
+        let var = xc.sqr().unwrap().mean_keepdim(D::Minus1).unwrap();
+        let xn = xc.broadcast_div(&(var + eps).unwrap().sqrt().unwrap()).unwrap();
+        xn.broadcast_mul(gain).unwrap().broadcast_add(bias).unwrap()
+    }
+
+    #[test]
+    fn gelu_matches_candle_values_and_gradient() {
+        let v: Vec<f32> = (0..61).map(|i| (i as f32 - 30.0) * 0.25).chain([0.0, -0.0, 1e-30, -12.0]).collect();
+        let x = var(&v, &[v.len()]);
+        let ours = gelu(x.as_tensor()).unwrap();
+        assert_eq!(ours.to_vec1::<f32>().unwrap(), x.as_tensor().gelu_erf().unwrap().to_vec1::<f32>().unwrap());
+        let (dv, dg) = compare1(&x, |t| gelu(t).unwrap(), |t| t.gelu_erf().unwrap());
+        assert!(dv == 0.0 && dg < 1e-5, "value {dv}, gradient {dg}");
+    }
+
+    #[test]
+    fn softmax_matches_the_composed_definition() {
+        let v: Vec<f32> = (0..2 * 3 * 5).map(|i| ((i * 17) % 13) as f32 * 0.7 - 4.0).collect();
+        let x = var(&v, &[2, 3, 5]);
+        let (dv, dg) =
+            compare1(&x, |t| softmax_last_dim(t).unwrap(), |t| candle_nn::ops::softmax(t, D::Minus1).unwrap());
+        assert!(dv < 1e-6 && dg < 1e-5, "value {dv}, gradient {dg}");
+        let rows = softmax_last_dim(x.as_tensor()).unwrap().sum(D::Minus1).unwrap().flatten_all().unwrap();
+        assert!(rows.to_vec1::<f32>().unwrap().iter().all(|s| (s - 1.0).abs() < 1e-6));
+    }
+
+    #[test]
+    fn layer_norm_matches_the_composed_definition() {
+        let xv: Vec<f32> = (0..4 * 6).map(|i| ((i * 29) % 11) as f32 * 0.9 - 3.0).collect();
+        let (x, gain, bias) = (
+            var(&xv, &[4, 6]),
+            var(&[1.5, 0.5, -1.0, 2.0, 1.0, 0.1], &[6]),
+            var(&[0.0, 1.0, 2.0, -1.0, 0.3, 0.0], &[6]),
+        );
+        let ours = layer_norm(&x, &gain, &bias, 1e-5).unwrap();
+        let theirs = composed_norm(&x, &gain, &bias, 1e-5);
+        assert!(max_diff(&ours, &theirs) < 1e-5);
+        let (ga, gb) = (weighted_sum(&ours).backward().unwrap(), weighted_sum(&theirs).backward().unwrap());
+        for v in [&x, &gain, &bias] {
+            let d = max_diff(ga.get(v).unwrap(), gb.get(v).unwrap());
+            assert!(d < 1e-4, "gradient differs by {d}");
+        }
+    }
+
+    #[test]
+    fn constants_build_no_graph_and_bad_inputs_are_errors() {
+        let x = Tensor::new(&[[1f32, 2.0], [3.0, -1.0]], &Device::Cpu).unwrap();
+        assert!(!gelu(&x).unwrap().track_op());
+        assert!(!softmax_last_dim(&x).unwrap().track_op());
+        let f64s = x.to_dtype(candle_core::DType::F64).unwrap();
+        assert!(gelu(&f64s).is_err());
+        assert!(softmax_last_dim(&f64s).is_err());
+        let short = Tensor::new(&[1f32], &Device::Cpu).unwrap();
+        assert!(layer_norm(&x, &short, &short, 1e-5).is_err());
+        let empty = Tensor::zeros((2, 0), candle_core::DType::F32, &Device::Cpu).unwrap();
+        assert!(softmax_last_dim(&empty).is_err());
+    }
+
+    proptest! {
+        #[test]
+        fn kernels_match_their_composed_definitions(v in proptest::collection::vec(-6f32..6.0, 24)) {
+            let x = var(&v, &[4, 6]);
+            let (dv, dg) = compare1(&x, |t| gelu(t).unwrap(), |t| t.gelu_erf().unwrap());
+            prop_assert!(dv == 0.0 && dg < 1e-5, "gelu: value {dv}, gradient {dg}");
+            let (dv, dg) =
+                compare1(&x, |t| softmax_last_dim(t).unwrap(), |t| candle_nn::ops::softmax(t, D::Minus1).unwrap());
+            prop_assert!(dv < 1e-6 && dg < 1e-5, "softmax: value {dv}, gradient {dg}");
+            let gain = Tensor::new(&[1.0f32, -0.5, 2.0, 0.7, 1.1, 0.2], &Device::Cpu).unwrap();
+            let bias = Tensor::new(&[0.1f32, 0.0, -0.3, 0.5, 0.0, 1.0], &Device::Cpu).unwrap();
+            let (dv, dg) = compare1(
+                &x,
+                |t| layer_norm(t, &gain, &bias, 1e-5).unwrap(),
+                |t| composed_norm(t, &gain, &bias, 1e-5),
+            );
+            prop_assert!(dv < 1e-5 && dg < 1e-3, "layer norm: value {dv}, gradient {dg}");
+        }
+    }
+}
