@@ -1,14 +1,18 @@
 //! Element-wise blocks of the QUADFormer layer as single candle custom ops with closed-form
-//! backward passes: the erf GELU of the feed-forward and classification heads, the softmax of
-//! the attention `C` (eq:first_layer_attention) and the layer norm of `Norm(·)`.
+//! backward passes: the bias of a dense layer, the erf GELU of the feed-forward and
+//! classification heads, the softmax of the attention `C` (eq:first_layer_attention) and the
+//! layer norm of `Norm(·)`.
 //!
-//! Composed from candle's element-wise ops these three took about half of a training step
+//! Composed from candle's element-wise ops the last three took about half of a training step
 //! (`examples/profile.rs train`, batch 32): the composed GELU backward alone is nine passes over
 //! every `b·l × d_ff` activation, each allocating its result, and candle's fused softmax and
 //! layer-norm kernels have no backward at all (shared/reference/rust-stack.md §4). Each op
 //! here makes one pass forward and one backward, and works in training and inference alike.
 //!
 //! Gradients (per row, `g` the incoming gradient):
+//! - bias `y = x + b` on every row: `∂/∂x = g`, `∂/∂b = Σ_rows g` (a broadcast's gradient in
+//!   candle 0.11 is a strided scalar sum; a rank-1 product, [`crate::layers::repeat_rows`],
+//!   costs a matrix product and an addition forward and back);
 //! - GELU `y = x Φ(x)`, `Φ(x) = ½(1 + erf(x/√2))`: `∂y/∂x = Φ(x) + x φ(x)`,
 //!   `φ(x) = e^{−x²/2}/√(2π)`. The forward values are those of candle's `gelu_erf`
 //!   (the same `erf_f32`).
@@ -20,7 +24,7 @@
 //! The backward passes return constants (no second derivatives), which is all training needs.
 //! Every op takes `f32` tensors on the CPU and is an error otherwise.
 
-use candle_core::{CpuStorage, CustomOp1, CustomOp3, Layout, Shape, Storage, Tensor};
+use candle_core::{CpuStorage, CustomOp1, CustomOp2, CustomOp3, Layout, Shape, Storage, Tensor};
 
 /// `1/√(2π)`.
 const FRAC_1_SQRT_2PI: f32 = 0.398_942_3;
@@ -41,6 +45,15 @@ pub fn gelu(x: &Tensor) -> candle_core::Result<Tensor> {
 pub fn softmax_last_dim(x: &Tensor) -> candle_core::Result<Tensor> {
     let x = x.contiguous()?;
     if x.track_op() { x.apply_op1(Softmax) } else { x.apply_op1_no_bwd(&Softmax) }
+}
+
+/// `x + b` with the bias `b` (`d` elements) added to every row of `x` (last axis `d`).
+///
+/// # Errors
+/// Shapes that do not fit, a dtype other than `f32`, a device other than the CPU.
+pub fn add_bias(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
+    let (x, bias) = (x.contiguous()?, bias.contiguous()?);
+    if x.track_op() || bias.track_op() { x.apply_op2(&bias, AddBias) } else { x.apply_op2_no_bwd(&bias, &AddBias) }
 }
 
 /// Layer norm of the rows of `x` (`n × d`) with gain `γ` and bias `β` (both `d`), variance
@@ -79,6 +92,62 @@ fn last_dim(op: &str, shape: &Shape) -> candle_core::Result<usize> {
     match shape.dims().last() {
         Some(&d) if d > 0 => Ok(d),
         _ => candle_core::bail!("{op}: needs a non-empty last axis, got shape {shape:?}"),
+    }
+}
+
+struct AddBias;
+
+impl AddBias {
+    fn check(&self, x: &Shape, bias: &Shape) -> candle_core::Result<usize> {
+        let d = last_dim(self.name(), x)?;
+        if bias.elem_count() != d {
+            candle_core::bail!("{}: rows of width {d}, bias {bias:?}", self.name())
+        }
+        Ok(d)
+    }
+}
+
+impl CustomOp2 for AddBias {
+    fn name(&self) -> &'static str {
+        "fused-add-bias"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let d = self.check(l1.shape(), l2.shape())?;
+        let (x, bias) = (f32_slice(self.name(), s1, l1)?, f32_slice(self.name(), s2, l2)?);
+        let mut y = x.to_vec();
+        for row in y.chunks_exact_mut(d) {
+            for (yj, bj) in row.iter_mut().zip(bias) {
+                *yj += bj;
+            }
+        }
+        Ok((CpuStorage::F32(y), l1.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        bias: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+        let d = self.check(x.shape(), bias.shape())?;
+        let db = with_f32(self.name(), grad, |g| {
+            let mut db = vec![0f32; d];
+            for row in g.chunks_exact(d) {
+                for (s, gj) in db.iter_mut().zip(row) {
+                    *s += gj;
+                }
+            }
+            Ok(db)
+        })?;
+        Ok((Some(grad.clone()), Some(Tensor::from_vec(db, bias.shape(), bias.device())?)))
     }
 }
 
@@ -290,6 +359,19 @@ mod tests {
         let var = xc.sqr().unwrap().mean_keepdim(D::Minus1).unwrap();
         let xn = xc.broadcast_div(&(var + eps).unwrap().sqrt().unwrap()).unwrap();
         xn.broadcast_mul(gain).unwrap().broadcast_add(bias).unwrap()
+    }
+
+    #[test]
+    fn add_bias_matches_a_broadcast() {
+        let x = var(&(0..12).map(|i| i as f32 * 0.5 - 2.0).collect::<Vec<_>>(), &[4, 3]);
+        let b = var(&[0.5, -1.0, 2.0], &[3]);
+        let ours = add_bias(&x, &b).unwrap();
+        let theirs = x.broadcast_add(&b).unwrap();
+        assert_eq!(max_diff(&ours, &theirs), 0.0);
+        let (ga, gb) = (weighted_sum(&ours).backward().unwrap(), weighted_sum(&theirs).backward().unwrap());
+        assert_eq!(max_diff(ga.get(&x).unwrap(), gb.get(&x).unwrap()), 0.0);
+        assert!(max_diff(ga.get(&b).unwrap(), gb.get(&b).unwrap()) < 1e-6);
+        assert!(add_bias(&x, &var(&[1.0, 2.0], &[2])).is_err());
     }
 
     #[test]

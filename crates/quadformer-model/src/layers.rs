@@ -1,13 +1,11 @@
-//! Building blocks of the QUADFormer network: a dense layer whose bias gradient is a matrix
-//! product (it repeats its bias over the rows with [`repeat_rows`] instead of candle's
-//! `broadcast_add`), and a layer norm computed by one fused kernel ([`crate::fused`]).
+//! Building blocks of the QUADFormer network: a dense layer and a layer norm, each made of one
+//! matrix product at most and the kernels of [`crate::fused`], and [`repeat_rows`], a
+//! broadcast whose gradient is a matrix product.
 //!
 //! candle 0.11 back-propagates a broadcast by summing the gradient over the broadcast axis, and
 //! for any axis but the last that sum is a scalar loop with an integer division per element.
-//! With every bias, norm gain and the batch-shared TPC prior broadcast over the `b·l` rows of a
-//! batch, those sums took about 13 % of a training step (perf, `examples/profile.rs train`).
 //! Repeating a row vector `v` as the rank-1 product `1ₙ v` gives the same values, and its
-//! gradient `1ₙᵀ g` is one vectorised matrix product.
+//! gradient `1ₙᵀ g` is one vectorised matrix product (decision 065).
 //!
 //! Variable names (`weight`, `bias`) and shapes are those of `candle_nn::Linear` and the
 //! PyTorch layer norm, so checkpoints and the seeded initialisation ([`crate::init`]) are
@@ -49,17 +47,12 @@ impl Dense {
         })
     }
 
-    /// `x Wᵀ + b` for `x` of shape `n × in`. `frozen` (inference, no backward) adds the bias
-    /// by a plain broadcast, which is faster forward.
+    /// `x Wᵀ + b` for `x` of shape `n × in` (the bias by [`crate::fused::add_bias`]).
     ///
     /// # Errors
     /// candle errors, e.g. a wrong input width.
-    pub fn forward(&self, x: &Tensor, frozen: bool) -> candle_core::Result<Tensor> {
-        let xw = x.matmul(&self.weight.t()?)?;
-        if frozen {
-            return xw.broadcast_add(&self.bias);
-        }
-        xw + repeat_rows(&self.bias, x.dim(0)?)?
+    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        crate::fused::add_bias(&x.matmul(&self.weight.t()?)?, &self.bias)
     }
 }
 
@@ -134,8 +127,7 @@ mod tests {
         let linear =
             candle_nn::Linear::new(data["d.weight"].as_tensor().clone(), Some(data["d.bias"].as_tensor().clone()));
         let x = input(6, 5);
-        let y = dense.forward(&x, false).unwrap();
-        assert!(close(&y, &dense.forward(&x, true).unwrap()) < 1e-6);
+        let y = dense.forward(&x).unwrap();
         assert!(close(&y, &candle_core::Module::forward(&linear, &x).unwrap()) < 1e-6);
         let candle = candle_nn::ops::layer_norm(&y, data["n.weight"].as_tensor(), data["n.bias"].as_tensor(), LN_EPS);
         assert!(close(&norm.forward(&y).unwrap(), &candle.unwrap()) < 1e-5);

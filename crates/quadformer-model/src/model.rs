@@ -363,8 +363,7 @@ impl QuadFormerNet {
         self.varmap.all_vars().iter().map(|v| v.elem_count()).sum()
     }
 
-    /// Switches to inference: precomputes the TPC priors (they depend only on `γ`) and lets the
-    /// dense layers add their biases by a plain broadcast (faster forward, slower backward).
+    /// Switches to inference: precomputes the TPC priors (they depend only on `γ`).
     /// Call after the last change of the variables; [`QuadFormerNet::thaw`] switches back.
     ///
     /// # Errors
@@ -398,9 +397,9 @@ impl QuadFormerNet {
     }
 
     /// Anomaly Transformer's Gaussian prior from the layer input `h` (`(b·l) × d`).
-    fn gaussian_prior(&self, sigma_proj: &Dense, h: &Tensor, b: usize, frozen: bool) -> candle_core::Result<Tensor> {
+    fn gaussian_prior(&self, sigma_proj: &Dense, h: &Tensor, b: usize) -> candle_core::Result<Tensor> {
         let heads = self.cfg.n_heads;
-        let s = sigma_proj.forward(h, frozen)?.reshape((b, self.len, heads))?.transpose(1, 2)?.contiguous()?;
+        let s = sigma_proj.forward(h)?.reshape((b, self.len, heads))?.transpose(1, 2)?.contiguous()?;
         // σ = 3^(sigmoid(5s) + 1e−5) − 1 (Anomaly Transformer attn.py).
         let s = (candle_nn::ops::sigmoid(&(s * 5.0)?)? + 1e-5)?;
         let sigma = ((s * 3f64.ln())?.exp()? - 1.0)?.unsqueeze(D::Minus1)?;
@@ -422,11 +421,9 @@ impl QuadFormerNet {
         let (d, heads) = (self.cfg.d_model, self.cfg.n_heads);
         let dh = d / heads;
         let scale = 1.0 / (dh as f64).sqrt();
-        // A frozen network (inference) takes the forward-only fast paths.
-        let frozen = self.prior_cache.is_some();
         let mut h = self
             .embed
-            .forward(&x.reshape((b * l, m))?, frozen)?
+            .forward(&x.reshape((b * l, m))?)?
             .reshape((b, l, d))?
             .broadcast_add(&self.pos)?
             .reshape((b * l, d))?;
@@ -436,9 +433,9 @@ impl QuadFormerNet {
         let mut prior = Vec::with_capacity(self.layers.len());
         let mut attn = Vec::with_capacity(self.layers.len());
         for (idx, layer) in self.layers.iter().enumerate() {
-            let q = split(layer.w_q.forward(&h, frozen)?)?;
-            let k = split(layer.w_k.forward(&h, frozen)?)?;
-            let v = split(layer.w_v.forward(&h, frozen)?)?;
+            let q = split(layer.w_q.forward(&h)?)?;
+            let k = split(layer.w_k.forward(&h)?)?;
+            let v = split(layer.w_v.forward(&h)?)?;
             // eq:first_layer_attention (h = 1 or DCM off) / eq:cross_layer_attention (h > 1).
             let keys = match (&k_prev, self.cfg.dcm) {
                 (Some(kp), true) => kp,
@@ -449,23 +446,23 @@ impl QuadFormerNet {
             let t = match (&layer.log_gamma, &layer.sigma, &self.prior_cache) {
                 (Some(_), _, Some(cache)) if idx < cache.len() => cache[idx].clone(),
                 (Some(lg), _, _) => self.tpc(lg)?,
-                (None, Some(sp), _) => self.gaussian_prior(sp, &h, b, frozen)?,
+                (None, Some(sp), _) => self.gaussian_prior(sp, &h, b)?,
                 (None, None, _) => candle_core::bail!("layer {idx} has no prior"),
             };
             let out = c.matmul(&v)?.transpose(1, 2)?.reshape((b * l, d))?;
-            let z = layer.norm1.forward(&(layer.w_o.forward(&out, frozen)? + &h)?)?;
-            let f = layer.ff2.forward(&gelu(&layer.ff1.forward(&z, frozen)?)?, frozen)?;
+            let z = layer.norm1.forward(&(layer.w_o.forward(&out)? + &h)?)?;
+            let f = layer.ff2.forward(&gelu(&layer.ff1.forward(&z)?)?)?;
             h = layer.norm2.forward(&(f + &z)?)?;
             prior.push(t);
             attn.push(c);
             k_prev = Some(k);
         }
-        let r_hat = self.recon.forward(&h, frozen)?;
+        let r_hat = self.recon.forward(&h)?;
         let class_in = match self.cfg.class_input {
             ClassInput::Reconstruction => &r_hat,
             ClassInput::Hidden => &h,
         };
-        let logits = self.class2.forward(&gelu(&self.class1.forward(class_in, frozen)?)?, frozen)?.reshape((b, l))?;
+        let logits = self.class2.forward(&gelu(&self.class1.forward(class_in)?)?)?.reshape((b, l))?;
         Ok(Output { r_hat: r_hat.reshape((b, l, m))?, logits, prior, attn })
     }
 
