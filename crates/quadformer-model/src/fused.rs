@@ -14,8 +14,8 @@
 //!   candle 0.11 is a strided scalar sum; a rank-1 product, [`crate::layers::repeat_rows`],
 //!   costs a matrix product and an addition forward and back);
 //! - GELU `y = x Φ(x)`, `Φ(x) = ½(1 + erf(x/√2))`: `∂y/∂x = Φ(x) + x φ(x)`,
-//!   `φ(x) = e^{−x²/2}/√(2π)`. The forward values are those of candle's `gelu_erf`
-//!   (the same `erf_f32`).
+//!   `φ(x) = e^{−x²/2}/√(2π)`, with `erf`, `exp` and `ln` from [`crate::vmath`] (eight lanes at
+//!   a time; the forward differs from candle's `gelu_erf` by less than `3·10⁻⁷ |x|`).
 //! - softmax `yⱼ = e^{sⱼ}/Σₖ e^{sₖ}`: `∂/∂sⱼ = yⱼ (gⱼ − Σₖ gₖ yₖ)`.
 //! - layer norm `yⱼ = x̂ⱼ γⱼ + βⱼ`, `x̂ = (x − μ)/σ`, `σ = √(var + ε)`:
 //!   `∂/∂x = (ĝ − mean(ĝ) − x̂ · mean(ĝ ⊙ x̂))/σ` with `ĝ = g ⊙ γ`; `∂/∂γ = Σ_rows g ⊙ x̂`,
@@ -26,10 +26,12 @@
 
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, CustomOp3, Layout, Shape, Storage, Tensor};
 
+use crate::vmath;
+
 /// `1/√(2π)`.
 const FRAC_1_SQRT_2PI: f32 = 0.398_942_3;
 
-/// The erf GELU `x Φ(x)`, element-wise; values equal candle's `gelu_erf`.
+/// The erf GELU `x Φ(x)`, element-wise (candle's `gelu_erf` up to `3·10⁻⁷ |x|`).
 ///
 /// # Errors
 /// A dtype other than `f32`, a device other than the CPU.
@@ -160,10 +162,11 @@ impl CustomOp1 for Gelu {
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
         let x = f32_slice(self.name(), s, l)?;
-        let y = x
-            .iter()
-            .map(|&v| (candle_core::cpu::erf::erf_f32(v * std::f32::consts::FRAC_1_SQRT_2) + 1.0) * 0.5 * v)
-            .collect();
+        let mut y: Vec<f32> = x.iter().map(|v| v * std::f32::consts::FRAC_1_SQRT_2).collect();
+        vmath::erf_in_place(&mut y);
+        for (yj, xj) in y.iter_mut().zip(x) {
+            *yj = (*yj + 1.0) * 0.5 * xj;
+        }
         Ok((CpuStorage::F32(y), l.shape().clone()))
     }
 
@@ -171,15 +174,14 @@ impl CustomOp1 for Gelu {
         let dx = with_f32(self.name(), arg, |x| {
             with_f32(self.name(), res, |y| {
                 with_f32(self.name(), grad, |g| {
-                    Ok(x.iter()
-                        .zip(y)
-                        .zip(g)
-                        .map(|((&x, &y), &g)| {
-                            // Φ(x) = y/x reuses the forward's erf; Φ(0) = ½.
-                            let cdf = if x == 0.0 { 0.5 } else { y / x };
-                            g * (cdf + x * FRAC_1_SQRT_2PI * (-0.5 * x * x).exp())
-                        })
-                        .collect::<Vec<f32>>())
+                    let mut dx: Vec<f32> = x.iter().map(|v| -0.5 * v * v).collect();
+                    vmath::exp_in_place(&mut dx);
+                    for (((d, &x), &y), &g) in dx.iter_mut().zip(x).zip(y).zip(g) {
+                        // Φ(x) = y/x reuses the forward's erf; Φ(0) = ½.
+                        let cdf = if x == 0.0 { 0.5 } else { y / x };
+                        *d = g * (cdf + x * FRAC_1_SQRT_2PI * *d);
+                    }
+                    Ok(dx)
                 })
             })
         })?;
@@ -201,9 +203,10 @@ impl CustomOp1 for Softmax {
         for (xr, yr) in x.chunks_exact(len).zip(y.chunks_exact_mut(len)) {
             let max = xr.iter().copied().fold(f32::NEG_INFINITY, f32::max);
             for (yj, &xj) in yr.iter_mut().zip(xr) {
-                *yj = (xj - max).exp();
+                *yj = xj - max;
             }
-            let sum: f32 = yr.iter().sum();
+            vmath::exp_in_place(yr);
+            let sum = vmath::sum(yr);
             for yj in yr.iter_mut() {
                 *yj /= sum;
             }
@@ -217,7 +220,7 @@ impl CustomOp1 for Softmax {
             with_f32(self.name(), grad, |g| {
                 let mut dx = vec![0f32; y.len()];
                 for ((yr, gr), dr) in y.chunks_exact(len).zip(g.chunks_exact(len)).zip(dx.chunks_exact_mut(len)) {
-                    let dot: f32 = yr.iter().zip(gr).map(|(a, b)| a * b).sum();
+                    let dot = vmath::dot(yr, gr);
                     for ((d, &yj), &gj) in dr.iter_mut().zip(yr).zip(gr) {
                         *d = yj * (gj - dot);
                     }
@@ -242,12 +245,14 @@ impl LayerNorm {
         Ok(d)
     }
 
-    /// Mean and `1/σ` of one row.
-    fn moments(&self, row: &[f32]) -> (f32, f32) {
+    /// Writes the centred row `x − μ` into `centred` and returns `1/σ`.
+    fn centre(&self, row: &[f32], centred: &mut [f32]) -> f32 {
         let n = row.len() as f32;
-        let mu = row.iter().sum::<f32>() / n;
-        let var = row.iter().map(|v| (v - mu) * (v - mu)).sum::<f32>() / n;
-        (mu, 1.0 / (var + self.eps).sqrt())
+        let mu = vmath::sum(row) / n;
+        for (c, x) in centred.iter_mut().zip(row) {
+            *c = x - mu;
+        }
+        1.0 / (vmath::dot(centred, centred) / n + self.eps).sqrt()
     }
 }
 
@@ -270,9 +275,9 @@ impl CustomOp3 for LayerNorm {
             (f32_slice(self.name(), s1, l1)?, f32_slice(self.name(), s2, l2)?, f32_slice(self.name(), s3, l3)?);
         let mut y = vec![0f32; x.len()];
         for (xr, yr) in x.chunks_exact(d).zip(y.chunks_exact_mut(d)) {
-            let (mu, inv_sigma) = self.moments(xr);
-            for (((yj, &xj), &gj), &bj) in yr.iter_mut().zip(xr).zip(gain).zip(bias) {
-                *yj = (xj - mu) * inv_sigma * gj + bj;
+            let inv_sigma = self.centre(xr, yr);
+            for ((yj, &gj), &bj) in yr.iter_mut().zip(gain).zip(bias) {
+                *yj = *yj * inv_sigma * gj + bj;
             }
         }
         Ok((CpuStorage::F32(y), l1.shape().clone()))
@@ -295,15 +300,15 @@ impl CustomOp3 for LayerNorm {
                     let mut xhat = vec![0f32; d];
                     let mut ghat = vec![0f32; d];
                     for ((xr, gr), dr) in xv.chunks_exact(d).zip(g.chunks_exact(d)).zip(dx.chunks_exact_mut(d)) {
-                        let (mu, inv_sigma) = self.moments(xr);
+                        let inv_sigma = self.centre(xr, &mut xhat);
                         for j in 0..d {
-                            xhat[j] = (xr[j] - mu) * inv_sigma;
+                            xhat[j] *= inv_sigma;
                             ghat[j] = gr[j] * gamma[j];
                             dgain[j] += gr[j] * xhat[j];
                             dbias[j] += gr[j];
                         }
-                        let mean_g = ghat.iter().sum::<f32>() / d as f32;
-                        let mean_gx = ghat.iter().zip(&xhat).map(|(a, b)| a * b).sum::<f32>() / d as f32;
+                        let mean_g = vmath::sum(&ghat) / d as f32;
+                        let mean_gx = vmath::dot(&ghat, &xhat) / d as f32;
                         for j in 0..d {
                             dr[j] = (ghat[j] - mean_g - xhat[j] * mean_gx) * inv_sigma;
                         }
@@ -378,10 +383,8 @@ mod tests {
     fn gelu_matches_candle_values_and_gradient() {
         let v: Vec<f32> = (0..61).map(|i| (i as f32 - 30.0) * 0.25).chain([0.0, -0.0, 1e-30, -12.0]).collect();
         let x = var(&v, &[v.len()]);
-        let ours = gelu(x.as_tensor()).unwrap();
-        assert_eq!(ours.to_vec1::<f32>().unwrap(), x.as_tensor().gelu_erf().unwrap().to_vec1::<f32>().unwrap());
         let (dv, dg) = compare1(&x, |t| gelu(t).unwrap(), |t| t.gelu_erf().unwrap());
-        assert!(dv == 0.0 && dg < 1e-5, "value {dv}, gradient {dg}");
+        assert!(dv < 1e-6 && dg < 1e-5, "value {dv}, gradient {dg}");
     }
 
     #[test]
@@ -432,7 +435,7 @@ mod tests {
         fn kernels_match_their_composed_definitions(v in proptest::collection::vec(-6f32..6.0, 24)) {
             let x = var(&v, &[4, 6]);
             let (dv, dg) = compare1(&x, |t| gelu(t).unwrap(), |t| t.gelu_erf().unwrap());
-            prop_assert!(dv == 0.0 && dg < 1e-5, "gelu: value {dv}, gradient {dg}");
+            prop_assert!(dv < 1e-6 && dg < 1e-5, "gelu: value {dv}, gradient {dg}");
             let (dv, dg) =
                 compare1(&x, |t| softmax_last_dim(t).unwrap(), |t| candle_nn::ops::softmax(t, D::Minus1).unwrap());
             prop_assert!(dv < 1e-6 && dg < 1e-5, "softmax: value {dv}, gradient {dg}");

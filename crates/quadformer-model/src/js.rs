@@ -11,13 +11,14 @@
 //! Composed from candle's element-wise ops the divergence and its gradient took about 20 % of
 //! a training step: a dozen passes over every `b × heads × l × l` map, each allocating its
 //! result and, backwards, a zero-filled gradient. The kernel makes one pass forward and one
-//! backward. `p` may be shared by the batch (leading axis 1, the TPC prior); its gradient is
+//! backward, with its logarithms eight at a time ([`crate::vmath`]). `p` may be shared by the batch (leading axis 1, the TPC prior); its gradient is
 //! then summed over the batch. Each input's gradient is passed, stopped or reversed
 //! ([`GradFlow`]), which is how the min-max phases split the discrepancy.
 
 use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
 
 use crate::model::GradFlow;
+use crate::vmath;
 
 /// Additive guard of the logarithms.
 pub const JS_EPS: f32 = 1e-8;
@@ -83,8 +84,19 @@ fn f32_slice<'a>(s: &'a CpuStorage, l: &Layout) -> candle_core::Result<&'a [f32]
     Ok(&v[start..end])
 }
 
-fn ln_eps(x: f32) -> f32 {
-    (x + JS_EPS).ln()
+/// `ln(xⱼ + ε)` of every element.
+fn ln_eps(x: &[f32]) -> Vec<f32> {
+    let mut out: Vec<f32> = x.iter().map(|v| v + JS_EPS).collect();
+    vmath::ln_in_place(&mut out);
+    out
+}
+
+/// `ln(mⱼ + ε)` with `m = (p + q)/2`, into `out`.
+fn ln_mean_eps(p: &[f32], q: &[f32], out: &mut [f32]) {
+    for ((o, pj), qj) in out.iter_mut().zip(p).zip(q) {
+        *o = 0.5 * (pj + qj) + JS_EPS;
+    }
+    vmath::ln_in_place(out);
 }
 
 impl CustomOp2 for JsDivergence {
@@ -102,17 +114,18 @@ impl CustomOp2 for JsDivergence {
         let g = geometry(l1.shape(), l2.shape())?;
         let (p, q) = (f32_slice(s1, l1)?, f32_slice(s2, l2)?);
         // ln(p + ε) once per row of p (once per batch when p is shared).
-        let ln_p: Vec<f32> = p.iter().map(|&x| ln_eps(x)).collect();
+        let ln_p = ln_eps(p);
+        let (ln_q, mut ln_m) = (ln_eps(q), vec![0f32; g.len]);
         let mut out = Vec::with_capacity(g.rows);
-        for (r, q_row) in q.chunks_exact(g.len).enumerate() {
+        for (r, (q_row, lq_row)) in q.chunks_exact(g.len).zip(ln_q.chunks_exact(g.len)).enumerate() {
             let off = (r % g.p_rows) * g.len;
             let (p_row, lp_row) = (&p[off..off + g.len], &ln_p[off..off + g.len]);
-            let mut acc = 0f32;
-            for ((&pj, &lpj), &qj) in p_row.iter().zip(lp_row).zip(q_row) {
-                let lm = ln_eps(0.5 * (pj + qj));
-                acc += pj * (lpj - lm) + qj * (ln_eps(qj) - lm);
+            ln_mean_eps(p_row, q_row, &mut ln_m);
+            let mut acc = [0f32; 8];
+            for (j, (((&pj, &lpj), &qj), &lqj)) in p_row.iter().zip(lp_row).zip(q_row).zip(lq_row).enumerate() {
+                acc[j % 8] += pj * (lpj - ln_m[j]) + qj * (lqj - ln_m[j]);
             }
-            out.push(0.5 * acc);
+            out.push(0.5 * acc.iter().sum::<f32>());
         }
         let mut dims = l2.shape().dims().to_vec();
         dims.pop();
@@ -141,21 +154,26 @@ impl CustomOp2 for JsDivergence {
         let to_vec = |t: &Tensor| t.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>();
         let (pv, qv, gv) = (to_vec(p)?, to_vec(q)?, to_vec(grad)?);
         // ln(p + ε) is needed only for p's own gradient.
-        let ln_p: Vec<f32> = if p_sign.is_some() { pv.iter().map(|&x| ln_eps(x)).collect() } else { Vec::new() };
+        // ln(x + ε) is needed only for x's own gradient.
+        let ln_p = if p_sign.is_some() { ln_eps(&pv) } else { Vec::new() };
+        let ln_q = if q_sign.is_some() { ln_eps(&qv) } else { Vec::new() };
+        let mut ln_m = vec![0f32; geo.len];
         let mut dp = p_sign.map(|_| vec![0f32; pv.len()]);
         let mut dq = q_sign.map(|_| vec![0f32; qv.len()]);
         for (r, (q_row, &g_row)) in qv.chunks_exact(geo.len).zip(&gv).enumerate() {
             let off = (r % geo.p_rows) * geo.len;
             let p_row = &pv[off..off + geo.len];
+            ln_mean_eps(p_row, q_row, &mut ln_m);
             let half_g = 0.5 * g_row;
-            for (j, (&pj, &qj)) in p_row.iter().zip(q_row).enumerate() {
+            for (j, ((&pj, &qj), &lm)) in p_row.iter().zip(q_row).zip(&ln_m).enumerate() {
                 let m = 0.5 * (pj + qj);
-                let (lm, rm) = (ln_eps(m), m / (m + JS_EPS));
+                let rm = m / (m + JS_EPS);
                 if let (Some(d), Some(s)) = (dp.as_mut(), p_sign) {
                     d[off + j] += s * half_g * (ln_p[off + j] - lm + pj / (pj + JS_EPS) - rm);
                 }
                 if let (Some(d), Some(s)) = (dq.as_mut(), q_sign) {
-                    d[r * geo.len + j] = s * half_g * (ln_eps(qj) - lm + qj / (qj + JS_EPS) - rm);
+                    let k = r * geo.len + j;
+                    d[k] = s * half_g * (ln_q[k] - lm + qj / (qj + JS_EPS) - rm);
                 }
             }
         }

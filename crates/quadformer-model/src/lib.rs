@@ -79,6 +79,7 @@ pub mod js;
 pub mod layers;
 pub mod model;
 pub mod train;
+pub mod vmath;
 pub mod window;
 
 pub use alloc::tune_allocator;
