@@ -432,14 +432,21 @@ impl QuadFormerNet {
         let mut k_prev: Option<Tensor> = None;
         let mut prior = Vec::with_capacity(self.layers.len());
         let mut attn = Vec::with_capacity(self.layers.len());
+        let n_layers = self.layers.len();
         for (idx, layer) in self.layers.iter().enumerate() {
             let q = split(layer.w_q.forward(&h)?)?;
-            let k = split(layer.w_k.forward(&h)?)?;
+            // With DCM a layer's keys serve the next layer, so the last layer's are never used.
+            let k = if self.cfg.dcm && idx > 0 && idx + 1 == n_layers {
+                None
+            } else {
+                Some(split(layer.w_k.forward(&h)?)?)
+            };
             let v = split(layer.w_v.forward(&h)?)?;
             // eq:first_layer_attention (h = 1 or DCM off) / eq:cross_layer_attention (h > 1).
-            let keys = match (&k_prev, self.cfg.dcm) {
-                (Some(kp), true) => kp,
-                _ => &k,
+            let keys = match (self.cfg.dcm, &k_prev, &k) {
+                (true, Some(kp), _) => kp,
+                (_, _, Some(own)) => own,
+                _ => candle_core::bail!("layer {idx} has no keys"),
             };
             let scores = (q.matmul(&keys.t()?)? * scale)?;
             let c = softmax_last_dim(&scores)?;
@@ -455,7 +462,7 @@ impl QuadFormerNet {
             h = layer.norm2.forward(&(f + &z)?)?;
             prior.push(t);
             attn.push(c);
-            k_prev = Some(k);
+            k_prev = k;
         }
         let r_hat = self.recon.forward(&h)?;
         let class_in = match self.cfg.class_input {
