@@ -24,7 +24,7 @@ use ekf_residue::{
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
-use crate::model::{GradFlow, LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet};
+use crate::model::{GradFlow, LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet, Steps};
 use crate::train::{TrainConfig, TrainReport, train};
 use crate::window::{Normaliser, WindowConfig, Windows};
 
@@ -210,20 +210,29 @@ impl Need {
     }
 }
 
-/// Per-window per-step raw scores `(alg2, at, class)`, each `b·l` row-major (empty when not
-/// needed).
-fn window_scores(net: &QuadFormerNet, x: &Tensor, temperature: f64, need: Need) -> candle_core::Result<[Vec<f32>; 3]> {
-    let out = net.forward(x)?;
+/// Per-window per-step raw scores `(alg2, at, class)`, each `b·r` row-major for the `r` steps
+/// of `steps` (`l`, or the last one), empty when not needed.
+fn window_scores(
+    net: &QuadFormerNet,
+    x: &Tensor,
+    temperature: f64,
+    need: Need,
+    steps: Steps,
+) -> candle_core::Result<[Vec<f32>; 3]> {
+    let out = net.forward_steps(x, steps)?;
+    let (l, rows) = (x.dim(1)?, out.logits.dim(1)?);
     let mut res: [Vec<f32>; 3] = Default::default();
     if need.alg2 || need.at {
+        // Both normalise over every step of the window, then keep the steps asked for.
         let neg_tcd = QuadFormerNet::tcd(&out, GradFlow::Stop, GradFlow::Stop)?.neg()?;
         if need.alg2 {
-            res[0] = candle_nn::ops::softmax(&neg_tcd, D::Minus1)?.flatten_all()?.to_vec1()?;
+            let alg2 = candle_nn::ops::softmax(&neg_tcd, D::Minus1)?.narrow(1, l - rows, rows)?;
+            res[0] = alg2.flatten_all()?.to_vec1()?;
         }
         if need.at {
-            let err = (&out.r_hat - x)?.sqr()?.mean(D::Minus1)?;
-            let at = (candle_nn::ops::softmax(&(neg_tcd * temperature)?, D::Minus1)? * err)?;
-            res[1] = at.flatten_all()?.to_vec1()?;
+            let err = (&out.r_hat - x.narrow(1, l - rows, rows)?)?.sqr()?.mean(D::Minus1)?;
+            let weight = candle_nn::ops::softmax(&(neg_tcd * temperature)?, D::Minus1)?.narrow(1, l - rows, rows)?;
+            res[1] = (weight * err)?.flatten_all()?.to_vec1()?;
         }
     }
     if need.class {
@@ -245,7 +254,7 @@ fn raw_scores(
     let idx: Vec<usize> = (0..windows.len()).collect();
     for chunk in idx.chunks(score.batch_size) {
         let batch = windows.batch(chunk, &Device::Cpu)?;
-        let parts = window_scores(net, &batch.x, score.temperature, Need::ALL)?;
+        let parts = window_scores(net, &batch.x, score.temperature, Need::ALL, Steps::All)?;
         for (a, p) in acc.iter_mut().zip(parts) {
             a.extend(p);
         }
@@ -475,10 +484,11 @@ impl<'a> OnlineQuadFormer<'a> {
         }
         let x = Tensor::from_slice(&self.x, (1, l, m), &Device::Cpu)?;
         let mode = self.det.chosen.mode;
-        let [alg2, at, class] =
-            window_scores(&self.det.net, &x, self.det.config.score.temperature, Need::for_mode(mode))?;
-        let last = l - 1;
-        let pick = |v: &[f32]| v.get(last).map_or(f64::NAN, |s| f64::from(*s));
+        let need = Need::for_mode(mode);
+        // Only the newest step is scored: the last layer works on that row alone.
+        let steps = Steps::Last { with_tcd: need.alg2 || need.at };
+        let [alg2, at, class] = window_scores(&self.det.net, &x, self.det.config.score.temperature, need, steps)?;
+        let pick = |v: &[f32]| v.first().map_or(f64::NAN, |s| f64::from(*s));
         Ok(match mode {
             ScoreMode::Alg2 => pick(&alg2),
             ScoreMode::AnomalyTransformer => pick(&at),

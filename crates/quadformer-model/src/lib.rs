@@ -88,6 +88,6 @@ pub use detector::{
 };
 pub use error::{ModelError, Result};
 pub use init::init_vars_seeded;
-pub use model::{ClassInput, GradFlow, LossConfig, MinMax, NetConfig, Prior, QuadFormerNet};
+pub use model::{ClassInput, GradFlow, LossConfig, MinMax, NetConfig, Prior, QuadFormerNet, Steps};
 pub use train::{EpochStats, TrainConfig, TrainReport, TrainableModel, train};
 pub use window::{Batch, Normaliser, SeriesWindows, WindowConfig, Windows};

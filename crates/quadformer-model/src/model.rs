@@ -195,12 +195,12 @@ impl LossTerms {
     }
 }
 
-/// Network outputs for one batch.
+/// Network outputs for one batch (`r` = `l` steps, or 1 for [`Steps::Last`]).
 #[derive(Debug, Clone)]
 pub struct Output {
-    /// Reconstruction `R̂`, `b × l × m`.
+    /// Reconstruction `R̂`, `b × r × m`.
     pub r_hat: Tensor,
-    /// Classification logits (sigmoid → attack probability), `b × l`.
+    /// Classification logits (sigmoid → attack probability), `b × r`.
     pub logits: Tensor,
     /// Prior `Tʰ` per layer, `b × heads × l × l` or `1 × heads × l × l` (TPC).
     pub prior: Vec<Tensor>,
@@ -218,6 +218,20 @@ pub enum GradFlow {
     Stop,
     /// The gradient passes with its sign flipped (a gradient-reversal layer).
     Reverse,
+}
+
+/// Which steps of a window the forward pass produces outputs for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Steps {
+    /// Every step (training and batch scoring).
+    All,
+    /// Only the last step (streaming). `with_tcd` keeps every layer's full prior and attention
+    /// in the output so that the TCD of every step can be formed; without it `prior` and
+    /// `attn` are empty and the last layer's queries are the last step's alone.
+    Last {
+        /// Keep the full maps for the TCD.
+        with_tcd: bool,
+    },
 }
 
 struct Layer {
@@ -414,6 +428,17 @@ impl QuadFormerNet {
     /// # Errors
     /// candle errors, e.g. a wrong input shape.
     pub fn forward(&self, x: &Tensor) -> candle_core::Result<Output> {
+        self.forward_steps(x, Steps::All)
+    }
+
+    /// Forward pass of `x` (`b × l × m`) with outputs for the `steps` asked ([`Steps`]). With
+    /// [`Steps::Last`], `r_hat` is `b × 1 × m` and `logits` `b × 1`, equal to the last step of
+    /// [`QuadFormerNet::forward`]: what a streaming decision needs, with the last layer working
+    /// on one row instead of `l`.
+    ///
+    /// # Errors
+    /// candle errors, e.g. a wrong input shape.
+    pub fn forward_steps(&self, x: &Tensor, steps: Steps) -> candle_core::Result<Output> {
         let (b, l, m) = x.dims3()?;
         if l != self.len || m != self.dim {
             candle_core::bail!("input window {l} × {m}, network built for {} × {}", self.len, self.dim)
@@ -427,21 +452,32 @@ impl QuadFormerNet {
             .reshape((b, l, d))?
             .broadcast_add(&self.pos)?
             .reshape((b * l, d))?;
-        let split =
-            |t: Tensor| -> candle_core::Result<Tensor> { t.reshape((b, l, heads, dh))?.transpose(1, 2)?.contiguous() };
+        // `rows` rows per window of `(b·rows) × d` → `b × heads × rows × dh`.
+        let split = |t: Tensor, rows: usize| -> candle_core::Result<Tensor> {
+            t.reshape((b, rows, heads, dh))?.transpose(1, 2)?.contiguous()
+        };
+        let last_row =
+            |t: &Tensor| -> candle_core::Result<Tensor> { t.reshape((b, l, d))?.narrow(1, l - 1, 1)?.reshape((b, d)) };
         let mut k_prev: Option<Tensor> = None;
         let mut prior = Vec::with_capacity(self.layers.len());
         let mut attn = Vec::with_capacity(self.layers.len());
         let n_layers = self.layers.len();
+        let mut rows = l;
         for (idx, layer) in self.layers.iter().enumerate() {
-            let q = split(layer.w_q.forward(&h)?)?;
-            // With DCM a layer's keys serve the next layer, so the last layer's are never used.
-            let k = if self.cfg.dcm && idx > 0 && idx + 1 == n_layers {
-                None
-            } else {
-                Some(split(layer.w_k.forward(&h)?)?)
+            let last_layer = idx + 1 == n_layers;
+            // The last layer's output rows, and whether its attention is kept for the TCD.
+            let (out_rows, keep_attn) = match steps {
+                Steps::All => (l, true),
+                Steps::Last { with_tcd } if last_layer => (1, with_tcd),
+                Steps::Last { with_tcd } => (l, with_tcd),
             };
-            let v = split(layer.w_v.forward(&h)?)?;
+            // Queries of every step only when the attention is kept.
+            let q_rows = if keep_attn { l } else { out_rows };
+            let q_in = if q_rows == l { h.clone() } else { last_row(&h)? };
+            let q = split(layer.w_q.forward(&q_in)?, q_rows)?;
+            // With DCM a layer's keys serve the next layer, so the last layer's are never used.
+            let k = if self.cfg.dcm && idx > 0 && last_layer { None } else { Some(split(layer.w_k.forward(&h)?, l)?) };
+            let v = split(layer.w_v.forward(&h)?, l)?;
             // eq:first_layer_attention (h = 1 or DCM off) / eq:cross_layer_attention (h > 1).
             let keys = match (self.cfg.dcm, &k_prev, &k) {
                 (true, Some(kp), _) => kp,
@@ -450,18 +486,22 @@ impl QuadFormerNet {
             };
             let scores = (q.matmul(&keys.t()?)? * scale)?;
             let c = softmax_last_dim(&scores)?;
-            let t = match (&layer.log_gamma, &layer.sigma, &self.prior_cache) {
-                (Some(_), _, Some(cache)) if idx < cache.len() => cache[idx].clone(),
-                (Some(lg), _, _) => self.tpc(lg)?,
-                (None, Some(sp), _) => self.gaussian_prior(sp, &h, b)?,
-                (None, None, _) => candle_core::bail!("layer {idx} has no prior"),
-            };
-            let out = c.matmul(&v)?.transpose(1, 2)?.reshape((b * l, d))?;
-            let z = layer.norm1.forward(&(layer.w_o.forward(&out)? + &h)?)?;
+            let c_out = if q_rows == out_rows { c.clone() } else { c.narrow(2, l - 1, 1)? };
+            let h_res = if out_rows == l { h.clone() } else { last_row(&h)? };
+            if keep_attn {
+                prior.push(match (&layer.log_gamma, &layer.sigma, &self.prior_cache) {
+                    (Some(_), _, Some(cache)) if idx < cache.len() => cache[idx].clone(),
+                    (Some(lg), _, _) => self.tpc(lg)?,
+                    (None, Some(sp), _) => self.gaussian_prior(sp, &h, b)?,
+                    (None, None, _) => candle_core::bail!("layer {idx} has no prior"),
+                });
+                attn.push(c);
+            }
+            let out = c_out.matmul(&v)?.transpose(1, 2)?.reshape((b * out_rows, d))?;
+            let z = layer.norm1.forward(&(layer.w_o.forward(&out)? + h_res)?)?;
             let f = layer.ff2.forward(&gelu(&layer.ff1.forward(&z)?)?)?;
             h = layer.norm2.forward(&(f + &z)?)?;
-            prior.push(t);
-            attn.push(c);
+            rows = out_rows;
             k_prev = k;
         }
         let r_hat = self.recon.forward(&h)?;
@@ -469,8 +509,8 @@ impl QuadFormerNet {
             ClassInput::Reconstruction => &r_hat,
             ClassInput::Hidden => &h,
         };
-        let logits = self.class2.forward(&gelu(&self.class1.forward(class_in)?)?)?.reshape((b, l))?;
-        Ok(Output { r_hat: r_hat.reshape((b, l, m))?, logits, prior, attn })
+        let logits = self.class2.forward(&gelu(&self.class1.forward(class_in)?)?)?.reshape((b, rows))?;
+        Ok(Output { r_hat: r_hat.reshape((b, rows, m))?, logits, prior, attn })
     }
 
     /// TCD per step (eq. TCD of sec:attack_detector): mean over layers (and heads) of

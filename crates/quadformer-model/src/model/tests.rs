@@ -51,6 +51,40 @@ fn output_shapes() {
 }
 
 #[test]
+fn last_step_forward_matches_the_full_forward() {
+    let max_diff = |a: &Tensor, b: &Tensor| -> f32 {
+        (a - b).unwrap().abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f32>().unwrap()
+    };
+    for (prior, dcm, class_input, layers) in [
+        (Prior::Tpc, true, ClassInput::Hidden, 3),
+        (Prior::Tpc, false, ClassInput::Reconstruction, 2),
+        (Prior::Gaussian, true, ClassInput::Reconstruction, 1),
+        (Prior::Gaussian, false, ClassInput::Hidden, 3),
+    ] {
+        let cfg = NetConfig { class_input, n_layers: layers, ..tiny(prior, dcm) };
+        let mut net = QuadFormerNet::new(&cfg, 12, 3, 5).unwrap();
+        net.freeze().unwrap();
+        let x = batch(3, 12, 3, 6).x;
+        let full = net.forward(&x).unwrap();
+        let tcd = QuadFormerNet::tcd(&full, GradFlow::Stop, GradFlow::Stop).unwrap();
+        for with_tcd in [false, true] {
+            let last = net.forward_steps(&x, Steps::Last { with_tcd }).unwrap();
+            let case = format!("{prior:?} dcm={dcm} {class_input:?} layers={layers} tcd={with_tcd}");
+            assert_eq!(last.r_hat.dims(), &[3, 1, 3], "{case}");
+            assert_eq!(last.logits.dims(), &[3, 1], "{case}");
+            assert!(max_diff(&last.r_hat, &full.r_hat.narrow(1, 11, 1).unwrap()) < 1e-5, "{case}");
+            assert!(max_diff(&last.logits, &full.logits.narrow(1, 11, 1).unwrap()) < 1e-5, "{case}");
+            if with_tcd {
+                let t = QuadFormerNet::tcd(&last, GradFlow::Stop, GradFlow::Stop).unwrap();
+                assert!(max_diff(&t, &tcd) < 1e-6, "{case}");
+            } else {
+                assert!(last.attn.is_empty() && last.prior.is_empty(), "{case}");
+            }
+        }
+    }
+}
+
+#[test]
 fn prior_rows_sum_to_one_and_peak_on_diagonal() {
     for prior in [Prior::Tpc, Prior::Gaussian] {
         let net = QuadFormerNet::new(&tiny(prior, true), 30, 2, 0).unwrap();
