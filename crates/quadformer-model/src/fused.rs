@@ -73,16 +73,22 @@ pub fn layer_norm(x: &Tensor, gain: &Tensor, bias: &Tensor, eps: f32) -> candle_
     }
 }
 
-/// The contiguous `f32` elements of a storage.
-fn f32_slice<'a>(op: &str, s: &'a CpuStorage, l: &Layout) -> candle_core::Result<&'a [f32]> {
+/// The contiguous `f32` elements of a storage (for a custom op's `cpu_fwd`).
+///
+/// # Errors
+/// Another dtype, a non-contiguous layout; the message names `op`.
+pub fn f32_slice<'a>(op: &str, s: &'a CpuStorage, l: &Layout) -> candle_core::Result<&'a [f32]> {
     let CpuStorage::F32(v) = s else { candle_core::bail!("{op}: only f32 is supported") };
     let Some((start, end)) = l.contiguous_offsets() else { candle_core::bail!("{op}: non-contiguous input") };
     Ok(&v[start..end])
 }
 
 /// Calls `f` with the `f32` elements of `t` in row-major order (copied only when `t` is not
-/// contiguous, e.g. a broadcast gradient).
-fn with_f32<R>(op: &str, t: &Tensor, f: impl FnOnce(&[f32]) -> candle_core::Result<R>) -> candle_core::Result<R> {
+/// contiguous, e.g. a broadcast gradient), for a custom op's backward.
+///
+/// # Errors
+/// Another dtype or device (the message names `op`), and `f`'s errors.
+pub fn with_f32<R>(op: &str, t: &Tensor, f: impl FnOnce(&[f32]) -> candle_core::Result<R>) -> candle_core::Result<R> {
     let t = t.contiguous()?;
     let (storage, layout) = t.storage_and_layout();
     let Storage::Cpu(cpu) = &*storage else { candle_core::bail!("{op}: only the CPU is supported") };
