@@ -17,6 +17,7 @@
 
 use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
 
+use crate::fused::f32_slice;
 use crate::model::GradFlow;
 use crate::vmath;
 
@@ -78,12 +79,6 @@ fn geometry(p: &Shape, q: &Shape) -> candle_core::Result<Geometry> {
     Ok(Geometry { len, rows: q.elem_count() / len, p_rows: p.elem_count() / len })
 }
 
-fn f32_slice<'a>(s: &'a CpuStorage, l: &Layout) -> candle_core::Result<&'a [f32]> {
-    let CpuStorage::F32(v) = s else { candle_core::bail!("js_divergence: only f32 is supported") };
-    let Some((start, end)) = l.contiguous_offsets() else { candle_core::bail!("js_divergence: non-contiguous input") };
-    Ok(&v[start..end])
-}
-
 /// `ln(xⱼ + ε)` of every element.
 fn ln_eps(x: &[f32]) -> Vec<f32> {
     let mut out: Vec<f32> = x.iter().map(|v| v + JS_EPS).collect();
@@ -112,7 +107,7 @@ impl CustomOp2 for JsDivergence {
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let g = geometry(l1.shape(), l2.shape())?;
-        let (p, q) = (f32_slice(s1, l1)?, f32_slice(s2, l2)?);
+        let (p, q) = (f32_slice(self.name(), s1, l1)?, f32_slice(self.name(), s2, l2)?);
         // ln(p + ε) once per row of p (once per batch when p is shared).
         let ln_p = ln_eps(p);
         let (ln_q, mut ln_m) = (ln_eps(q), vec![0f32; g.len]);
