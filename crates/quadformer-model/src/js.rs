@@ -11,13 +11,13 @@
 //! Composed from candle's element-wise ops the divergence and its gradient took about 20 % of
 //! a training step: a dozen passes over every `b × heads × l × l` map, each allocating its
 //! result and, backwards, a zero-filled gradient. The kernel makes one pass forward and one
-//! backward, with its logarithms eight at a time ([`crate::vmath`]). `p` may be shared by the batch (leading axis 1, the TPC prior); its gradient is
-//! then summed over the batch. Each input's gradient is passed, stopped or reversed
+//! backward, with its logarithms eight at a time ([`crate::vmath`]). `p` may be shared by the
+//! batch (leading axis 1, the TPC prior); its gradient is then summed over the batch. Each input's gradient is passed, stopped or reversed
 //! ([`GradFlow`]), which is how the min-max phases split the discrepancy.
 
-use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
+use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 
-use crate::fused::f32_slice;
+use crate::fused::{f32_slice, with_f32};
 use crate::model::GradFlow;
 use crate::vmath;
 
@@ -94,6 +94,42 @@ fn ln_mean_eps(p: &[f32], q: &[f32], out: &mut [f32]) {
     vmath::ln_in_place(out);
 }
 
+/// `(∂JS/∂p, ∂JS/∂q)` times the incoming gradient `g` (one value per row), each scaled by its
+/// sign (`None`: no gradient).
+fn gradients(
+    geo: &Geometry,
+    pv: &[f32],
+    qv: &[f32],
+    gv: &[f32],
+    p_sign: Option<f32>,
+    q_sign: Option<f32>,
+) -> (Option<Vec<f32>>, Option<Vec<f32>>) {
+    // ln(x + ε) is needed only for x's own gradient.
+    let ln_p = if p_sign.is_some() { ln_eps(pv) } else { Vec::new() };
+    let ln_q = if q_sign.is_some() { ln_eps(qv) } else { Vec::new() };
+    let mut ln_m = vec![0f32; geo.len];
+    let mut dp = p_sign.map(|_| vec![0f32; pv.len()]);
+    let mut dq = q_sign.map(|_| vec![0f32; qv.len()]);
+    for (r, (q_row, &g_row)) in qv.chunks_exact(geo.len).zip(gv).enumerate() {
+        let off = (r % geo.p_rows) * geo.len;
+        let p_row = &pv[off..off + geo.len];
+        ln_mean_eps(p_row, q_row, &mut ln_m);
+        let half_g = 0.5 * g_row;
+        for (j, ((&pj, &qj), &lm)) in p_row.iter().zip(q_row).zip(&ln_m).enumerate() {
+            let m = 0.5 * (pj + qj);
+            let rm = m / (m + JS_EPS);
+            if let (Some(d), Some(s)) = (dp.as_mut(), p_sign) {
+                d[off + j] += s * half_g * (ln_p[off + j] - lm + pj / (pj + JS_EPS) - rm);
+            }
+            if let (Some(d), Some(s)) = (dq.as_mut(), q_sign) {
+                let k = r * geo.len + j;
+                d[k] = s * half_g * (ln_q[k] - lm + qj / (qj + JS_EPS) - rm);
+            }
+        }
+    }
+    (dp, dq)
+}
+
 impl CustomOp2 for JsDivergence {
     fn name(&self) -> &'static str {
         "js-divergence"
@@ -146,32 +182,10 @@ impl CustomOp2 for JsDivergence {
             return Ok((None, None));
         }
         let geo = geometry(p.shape(), q.shape())?;
-        let to_vec = |t: &Tensor| t.to_dtype(DType::F32)?.flatten_all()?.to_vec1::<f32>();
-        let (pv, qv, gv) = (to_vec(p)?, to_vec(q)?, to_vec(grad)?);
-        // ln(p + ε) is needed only for p's own gradient.
-        // ln(x + ε) is needed only for x's own gradient.
-        let ln_p = if p_sign.is_some() { ln_eps(&pv) } else { Vec::new() };
-        let ln_q = if q_sign.is_some() { ln_eps(&qv) } else { Vec::new() };
-        let mut ln_m = vec![0f32; geo.len];
-        let mut dp = p_sign.map(|_| vec![0f32; pv.len()]);
-        let mut dq = q_sign.map(|_| vec![0f32; qv.len()]);
-        for (r, (q_row, &g_row)) in qv.chunks_exact(geo.len).zip(&gv).enumerate() {
-            let off = (r % geo.p_rows) * geo.len;
-            let p_row = &pv[off..off + geo.len];
-            ln_mean_eps(p_row, q_row, &mut ln_m);
-            let half_g = 0.5 * g_row;
-            for (j, ((&pj, &qj), &lm)) in p_row.iter().zip(q_row).zip(&ln_m).enumerate() {
-                let m = 0.5 * (pj + qj);
-                let rm = m / (m + JS_EPS);
-                if let (Some(d), Some(s)) = (dp.as_mut(), p_sign) {
-                    d[off + j] += s * half_g * (ln_p[off + j] - lm + pj / (pj + JS_EPS) - rm);
-                }
-                if let (Some(d), Some(s)) = (dq.as_mut(), q_sign) {
-                    let k = r * geo.len + j;
-                    d[k] = s * half_g * (ln_q[k] - lm + qj / (qj + JS_EPS) - rm);
-                }
-            }
-        }
+        let name = self.name();
+        let (dp, dq) = with_f32(name, p, |pv| {
+            with_f32(name, q, |qv| with_f32(name, grad, |gv| Ok(gradients(&geo, pv, qv, gv, p_sign, q_sign))))
+        })?;
         let wrap = |v: Option<Vec<f32>>, like: &Tensor| -> candle_core::Result<Option<Tensor>> {
             v.map(|v| Tensor::from_vec(v, like.shape(), like.device())).transpose()
         };
@@ -181,7 +195,7 @@ impl CustomOp2 for JsDivergence {
 
 #[cfg(test)]
 mod tests {
-    use candle_core::{D, Device, Var};
+    use candle_core::{D, DType, Device, Var};
     use proptest::prelude::*;
 
     use super::*;

@@ -462,15 +462,15 @@ impl QuadFormerNet {
         let mut prior = Vec::with_capacity(self.layers.len());
         let mut attn = Vec::with_capacity(self.layers.len());
         let n_layers = self.layers.len();
-        let mut rows = l;
+        // Rows the last layer and the heads produce, and whether every layer's attention is
+        // kept for the TCD.
+        let (rows, keep_attn) = match steps {
+            Steps::All => (l, true),
+            Steps::Last { with_tcd } => (1, with_tcd),
+        };
         for (idx, layer) in self.layers.iter().enumerate() {
             let last_layer = idx + 1 == n_layers;
-            // The last layer's output rows, and whether its attention is kept for the TCD.
-            let (out_rows, keep_attn) = match steps {
-                Steps::All => (l, true),
-                Steps::Last { with_tcd } if last_layer => (1, with_tcd),
-                Steps::Last { with_tcd } => (l, with_tcd),
-            };
+            let out_rows = if last_layer { rows } else { l };
             // Queries of every step only when the attention is kept.
             let q_rows = if keep_attn { l } else { out_rows };
             let q_in = if q_rows == l { h.clone() } else { last_row(&h)? };
@@ -501,7 +501,6 @@ impl QuadFormerNet {
             let z = layer.norm1.forward(&(layer.w_o.forward(&out)? + h_res)?)?;
             let f = layer.ff2.forward(&gelu(&layer.ff1.forward(&z)?)?)?;
             h = layer.norm2.forward(&(f + &z)?)?;
-            rows = out_rows;
             k_prev = k;
         }
         let r_hat = self.recon.forward(&h)?;
