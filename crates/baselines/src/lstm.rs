@@ -18,7 +18,8 @@
 //! and incoming gradients `∂h`, `∂c`:
 //! `∂c* = ∂c + ∂h · o (1 − tanh² c)`, `∂a_i = ∂c* g i(1 − i)`, `∂a_f = ∂c* c₋ f(1 − f)`,
 //! `∂a_g = ∂c* i (1 − g²)`, `∂a_o = ∂h tanh c · o(1 − o)`, `∂c₋ = ∂c* f`.
-//! `σ` and `tanh` are computed from `exp`, eight lanes at a time (`quadformer_model::vmath`).
+//! `σ` and `tanh` are computed from `quadformer_model::vmath::exp`, the loops vectorised with
+//! AVX2 where the processor has it (`quadformer_model::vmath::vectorized`).
 
 use candle_core::{CpuStorage, CustomOp2, IndexOp, Layout, Shape, Tensor};
 use candle_nn::{VarBuilder, init};
@@ -106,28 +107,19 @@ impl LstmCell {
 }
 
 /// `σ(x)` of every element, in place.
+#[inline(always)]
 fn sigmoid_in_place(x: &mut [f32]) {
-    for v in x.iter_mut() {
-        *v = -*v;
-    }
-    vmath::exp_in_place(x);
-    for v in x.iter_mut() {
-        *v = 1.0 / (1.0 + *v);
-    }
+    x.iter_mut().for_each(|v| *v = 1.0 / (1.0 + vmath::exp(-*v)));
 }
 
 /// `tanh x` of every element, in place, as `1 − 2/(e^{2x} + 1)`.
+#[inline(always)]
 fn tanh_in_place(x: &mut [f32]) {
-    for v in x.iter_mut() {
-        *v *= 2.0;
-    }
-    vmath::exp_in_place(x);
-    for v in x.iter_mut() {
-        *v = 1.0 - 2.0 / (*v + 1.0);
-    }
+    x.iter_mut().for_each(|v| *v = 1.0 - 2.0 / (vmath::exp(2.0 * *v) + 1.0));
 }
 
 /// Activated gates of one row: `[i, f, g, o]` in place.
+#[inline(always)]
 fn activate(row: &mut [f32], h: usize) {
     let (ifg, o) = row.split_at_mut(3 * h);
     let (i_f, g) = ifg.split_at_mut(2 * h);
@@ -152,18 +144,25 @@ impl CustomOp2 for LstmCell {
         let (gates, c_prev) = (f32_slice(self.name(), s1, l1)?, f32_slice(self.name(), s2, l2)?);
         let mut act = gates.to_vec();
         let mut out = vec![0f32; b * 2 * h];
-        for ((a, cp), o) in act.chunks_exact_mut(4 * h).zip(c_prev.chunks_exact(h)).zip(out.chunks_exact_mut(2 * h)) {
-            activate(a, h);
-            let (ho, co) = o.split_at_mut(h);
-            for j in 0..h {
-                co[j] = a[h + j] * cp[j] + a[j] * a[2 * h + j];
-                ho[j] = co[j];
-            }
-            tanh_in_place(ho);
-            for j in 0..h {
-                ho[j] *= a[3 * h + j];
-            }
-        }
+        vmath::vectorized(
+            #[inline(always)]
+            || {
+                for ((a, cp), o) in
+                    act.chunks_exact_mut(4 * h).zip(c_prev.chunks_exact(h)).zip(out.chunks_exact_mut(2 * h))
+                {
+                    activate(a, h);
+                    let (ho, co) = o.split_at_mut(h);
+                    for j in 0..h {
+                        co[j] = a[h + j] * cp[j] + a[j] * a[2 * h + j];
+                        ho[j] = co[j];
+                    }
+                    tanh_in_place(ho);
+                    for j in 0..h {
+                        ho[j] *= a[3 * h + j];
+                    }
+                }
+            },
+        );
         Ok((CpuStorage::F32(out), Shape::from((b, 2 * h))))
     }
 
@@ -179,31 +178,36 @@ impl CustomOp2 for LstmCell {
             with_f32(self.name(), c_prev, |cp_all| {
                 with_f32(self.name(), res, |hc_all| {
                     with_f32(self.name(), grad, |g_all| {
-                        let mut act = a_all.to_vec();
-                        let mut d_gates = vec![0f32; b * 4 * h];
-                        let mut d_c_prev = vec![0f32; b * h];
-                        let mut tanh_c = vec![0f32; h];
-                        for r in 0..b {
-                            let a = &mut act[r * 4 * h..(r + 1) * 4 * h];
-                            activate(a, h);
-                            let cp = &cp_all[r * h..(r + 1) * h];
-                            let c = &hc_all[r * 2 * h + h..(r + 1) * 2 * h];
-                            let (dh, dc) = grad_row(g_all, r, h);
-                            tanh_c.copy_from_slice(c);
-                            tanh_in_place(&mut tanh_c);
-                            let da = &mut d_gates[r * 4 * h..(r + 1) * 4 * h];
-                            for j in 0..h {
-                                let (i, f, g, o) = (a[j], a[h + j], a[2 * h + j], a[3 * h + j]);
-                                let tc = tanh_c[j];
-                                let dc_total = dc[j] + dh[j] * o * (1.0 - tc * tc);
-                                da[j] = dc_total * g * i * (1.0 - i);
-                                da[h + j] = dc_total * cp[j] * f * (1.0 - f);
-                                da[2 * h + j] = dc_total * i * (1.0 - g * g);
-                                da[3 * h + j] = dh[j] * tc * o * (1.0 - o);
-                                d_c_prev[r * h + j] = dc_total * f;
-                            }
-                        }
-                        Ok((d_gates, d_c_prev))
+                        vmath::vectorized(
+                            #[inline(always)]
+                            || {
+                                let mut act = a_all.to_vec();
+                                let mut d_gates = vec![0f32; b * 4 * h];
+                                let mut d_c_prev = vec![0f32; b * h];
+                                let mut tanh_c = vec![0f32; h];
+                                for r in 0..b {
+                                    let a = &mut act[r * 4 * h..(r + 1) * 4 * h];
+                                    activate(a, h);
+                                    let cp = &cp_all[r * h..(r + 1) * h];
+                                    let c = &hc_all[r * 2 * h + h..(r + 1) * 2 * h];
+                                    let (dh, dc) = grad_row(g_all, r, h);
+                                    tanh_c.copy_from_slice(c);
+                                    tanh_in_place(&mut tanh_c);
+                                    let da = &mut d_gates[r * 4 * h..(r + 1) * 4 * h];
+                                    for j in 0..h {
+                                        let (i, f, g, o) = (a[j], a[h + j], a[2 * h + j], a[3 * h + j]);
+                                        let tc = tanh_c[j];
+                                        let dc_total = dc[j] + dh[j] * o * (1.0 - tc * tc);
+                                        da[j] = dc_total * g * i * (1.0 - i);
+                                        da[h + j] = dc_total * cp[j] * f * (1.0 - f);
+                                        da[2 * h + j] = dc_total * i * (1.0 - g * g);
+                                        da[3 * h + j] = dh[j] * tc * o * (1.0 - o);
+                                        d_c_prev[r * h + j] = dc_total * f;
+                                    }
+                                }
+                                Ok((d_gates, d_c_prev))
+                            },
+                        )
                     })
                 })
             })

@@ -130,11 +130,16 @@ impl CustomOp2 for AddBias {
         let d = self.check(l1.shape(), l2.shape())?;
         let (x, bias) = (f32_slice(self.name(), s1, l1)?, f32_slice(self.name(), s2, l2)?);
         let mut y = x.to_vec();
-        for row in y.chunks_exact_mut(d) {
-            for (yj, bj) in row.iter_mut().zip(bias) {
-                *yj += bj;
-            }
-        }
+        vmath::vectorized(
+            #[inline(always)]
+            || {
+                for row in y.chunks_exact_mut(d) {
+                    for (yj, bj) in row.iter_mut().zip(bias) {
+                        *yj += bj;
+                    }
+                }
+            },
+        );
         Ok((CpuStorage::F32(y), l1.shape().clone()))
     }
 
@@ -148,11 +153,16 @@ impl CustomOp2 for AddBias {
         let d = self.check(x.shape(), bias.shape())?;
         let db = with_f32(self.name(), grad, |g| {
             let mut db = vec![0f32; d];
-            for row in g.chunks_exact(d) {
-                for (s, gj) in db.iter_mut().zip(row) {
-                    *s += gj;
-                }
-            }
+            vmath::vectorized(
+                #[inline(always)]
+                || {
+                    for row in g.chunks_exact(d) {
+                        for (s, gj) in db.iter_mut().zip(row) {
+                            *s += gj;
+                        }
+                    }
+                },
+            );
             Ok(db)
         })?;
         Ok((Some(grad.clone()), Some(Tensor::from_vec(db, bias.shape(), bias.device())?)))
@@ -168,11 +178,15 @@ impl CustomOp1 for Gelu {
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
         let x = f32_slice(self.name(), s, l)?;
-        let mut y: Vec<f32> = x.iter().map(|v| v * std::f32::consts::FRAC_1_SQRT_2).collect();
-        vmath::erf_in_place(&mut y);
-        for (yj, xj) in y.iter_mut().zip(x) {
-            *yj = (*yj + 1.0) * 0.5 * xj;
-        }
+        let mut y = vec![0f32; x.len()];
+        vmath::vectorized(
+            #[inline(always)]
+            || {
+                for (yj, &v) in y.iter_mut().zip(x) {
+                    *yj = (vmath::erf(v * std::f32::consts::FRAC_1_SQRT_2) + 1.0) * 0.5 * v;
+                }
+            },
+        );
         Ok((CpuStorage::F32(y), l.shape().clone()))
     }
 
@@ -180,13 +194,17 @@ impl CustomOp1 for Gelu {
         let dx = with_f32(self.name(), arg, |x| {
             with_f32(self.name(), res, |y| {
                 with_f32(self.name(), grad, |g| {
-                    let mut dx: Vec<f32> = x.iter().map(|v| -0.5 * v * v).collect();
-                    vmath::exp_in_place(&mut dx);
-                    for (((d, &x), &y), &g) in dx.iter_mut().zip(x).zip(y).zip(g) {
-                        // Φ(x) = y/x reuses the forward's erf; Φ(0) = ½.
-                        let cdf = if x == 0.0 { 0.5 } else { y / x };
-                        *d = g * (cdf + x * FRAC_1_SQRT_2PI * *d);
-                    }
+                    let mut dx = vec![0f32; x.len()];
+                    vmath::vectorized(
+                        #[inline(always)]
+                        || {
+                            for (((d, &x), &y), &g) in dx.iter_mut().zip(x).zip(y).zip(g) {
+                                // Φ(x) = y/x reuses the forward's erf; Φ(0) = ½.
+                                let cdf = if x == 0.0 { 0.5 } else { y / x };
+                                *d = g * (cdf + x * FRAC_1_SQRT_2PI * vmath::exp(-0.5 * x * x));
+                            }
+                        },
+                    );
                     Ok(dx)
                 })
             })
@@ -206,17 +224,21 @@ impl CustomOp1 for Softmax {
         let len = last_dim(self.name(), l.shape())?;
         let x = f32_slice(self.name(), s, l)?;
         let mut y = vec![0f32; x.len()];
-        for (xr, yr) in x.chunks_exact(len).zip(y.chunks_exact_mut(len)) {
-            let max = xr.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-            for (yj, &xj) in yr.iter_mut().zip(xr) {
-                *yj = xj - max;
-            }
-            vmath::exp_in_place(yr);
-            let sum = vmath::sum(yr);
-            for yj in yr.iter_mut() {
-                *yj /= sum;
-            }
-        }
+        vmath::vectorized(
+            #[inline(always)]
+            || {
+                for (xr, yr) in x.chunks_exact(len).zip(y.chunks_exact_mut(len)) {
+                    let max = vmath::max(xr);
+                    for (yj, &xj) in yr.iter_mut().zip(xr) {
+                        *yj = vmath::exp(xj - max);
+                    }
+                    let sum = vmath::sum(yr);
+                    for yj in yr.iter_mut() {
+                        *yj /= sum;
+                    }
+                }
+            },
+        );
         Ok((CpuStorage::F32(y), l.shape().clone()))
     }
 
@@ -225,12 +247,18 @@ impl CustomOp1 for Softmax {
         let dx = with_f32(self.name(), res, |y| {
             with_f32(self.name(), grad, |g| {
                 let mut dx = vec![0f32; y.len()];
-                for ((yr, gr), dr) in y.chunks_exact(len).zip(g.chunks_exact(len)).zip(dx.chunks_exact_mut(len)) {
-                    let dot = vmath::dot(yr, gr);
-                    for ((d, &yj), &gj) in dr.iter_mut().zip(yr).zip(gr) {
-                        *d = yj * (gj - dot);
-                    }
-                }
+                vmath::vectorized(
+                    #[inline(always)]
+                    || {
+                        for ((yr, gr), dr) in y.chunks_exact(len).zip(g.chunks_exact(len)).zip(dx.chunks_exact_mut(len))
+                        {
+                            let dot = vmath::dot(yr, gr);
+                            for ((d, &yj), &gj) in dr.iter_mut().zip(yr).zip(gr) {
+                                *d = yj * (gj - dot);
+                            }
+                        }
+                    },
+                );
                 Ok(dx)
             })
         })?;
@@ -252,6 +280,7 @@ impl LayerNorm {
     }
 
     /// Writes the centred row `x − μ` into `centred` and returns `1/σ`.
+    #[inline(always)]
     fn centre(&self, row: &[f32], centred: &mut [f32]) -> f32 {
         let n = row.len() as f32;
         let mu = vmath::sum(row) / n;
@@ -280,12 +309,17 @@ impl CustomOp3 for LayerNorm {
         let (x, gain, bias) =
             (f32_slice(self.name(), s1, l1)?, f32_slice(self.name(), s2, l2)?, f32_slice(self.name(), s3, l3)?);
         let mut y = vec![0f32; x.len()];
-        for (xr, yr) in x.chunks_exact(d).zip(y.chunks_exact_mut(d)) {
-            let inv_sigma = self.centre(xr, yr);
-            for ((yj, &gj), &bj) in yr.iter_mut().zip(gain).zip(bias) {
-                *yj = *yj * inv_sigma * gj + bj;
-            }
-        }
+        vmath::vectorized(
+            #[inline(always)]
+            || {
+                for (xr, yr) in x.chunks_exact(d).zip(y.chunks_exact_mut(d)) {
+                    let inv_sigma = self.centre(xr, yr);
+                    for ((yj, &gj), &bj) in yr.iter_mut().zip(gain).zip(bias) {
+                        *yj = *yj * inv_sigma * gj + bj;
+                    }
+                }
+            },
+        );
         Ok((CpuStorage::F32(y), l1.shape().clone()))
     }
 
@@ -301,25 +335,31 @@ impl CustomOp3 for LayerNorm {
         let (dx, dgain, dbias) = with_f32(self.name(), x, |xv| {
             with_f32(self.name(), gain, |gamma| {
                 with_f32(self.name(), grad, |g| {
-                    let mut dx = vec![0f32; xv.len()];
-                    let (mut dgain, mut dbias) = (vec![0f32; d], vec![0f32; d]);
-                    let mut xhat = vec![0f32; d];
-                    let mut ghat = vec![0f32; d];
-                    for ((xr, gr), dr) in xv.chunks_exact(d).zip(g.chunks_exact(d)).zip(dx.chunks_exact_mut(d)) {
-                        let inv_sigma = self.centre(xr, &mut xhat);
-                        for j in 0..d {
-                            xhat[j] *= inv_sigma;
-                            ghat[j] = gr[j] * gamma[j];
-                            dgain[j] += gr[j] * xhat[j];
-                            dbias[j] += gr[j];
-                        }
-                        let mean_g = vmath::sum(&ghat) / d as f32;
-                        let mean_gx = vmath::dot(&ghat, &xhat) / d as f32;
-                        for j in 0..d {
-                            dr[j] = (ghat[j] - mean_g - xhat[j] * mean_gx) * inv_sigma;
-                        }
-                    }
-                    Ok((dx, dgain, dbias))
+                    vmath::vectorized(
+                        #[inline(always)]
+                        || {
+                            let mut dx = vec![0f32; xv.len()];
+                            let (mut dgain, mut dbias) = (vec![0f32; d], vec![0f32; d]);
+                            let mut xhat = vec![0f32; d];
+                            let mut ghat = vec![0f32; d];
+                            for ((xr, gr), dr) in xv.chunks_exact(d).zip(g.chunks_exact(d)).zip(dx.chunks_exact_mut(d))
+                            {
+                                let inv_sigma = self.centre(xr, &mut xhat);
+                                for j in 0..d {
+                                    xhat[j] *= inv_sigma;
+                                    ghat[j] = gr[j] * gamma[j];
+                                    dgain[j] += gr[j] * xhat[j];
+                                    dbias[j] += gr[j];
+                                }
+                                let mean_g = vmath::sum(&ghat) / d as f32;
+                                let mean_gx = vmath::dot(&ghat, &xhat) / d as f32;
+                                for j in 0..d {
+                                    dr[j] = (ghat[j] - mean_g - xhat[j] * mean_gx) * inv_sigma;
+                                }
+                            }
+                            Ok((dx, dgain, dbias))
+                        },
+                    )
                 })
             })
         })?;

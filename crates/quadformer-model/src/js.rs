@@ -11,7 +11,7 @@
 //! Composed from candle's element-wise ops the divergence and its gradient took about 20 % of
 //! a training step: a dozen passes over every `b × heads × l × l` map, each allocating its
 //! result and, backwards, a zero-filled gradient. The kernel makes one pass forward and one
-//! backward, with its logarithms eight at a time ([`crate::vmath`]). `p` may be shared by the
+//! backward, vectorised ([`crate::vmath`]). `p` may be shared by the
 //! batch (leading axis 1, the TPC prior); its gradient is then summed over the batch. Each input's gradient is passed, stopped or reversed
 //! ([`GradFlow`]), which is how the min-max phases split the discrepancy.
 
@@ -80,22 +80,18 @@ fn geometry(p: &Shape, q: &Shape) -> candle_core::Result<Geometry> {
 }
 
 /// `ln(xⱼ + ε)` of every element.
+#[inline(always)]
 fn ln_eps(x: &[f32]) -> Vec<f32> {
-    let mut out: Vec<f32> = x.iter().map(|v| v + JS_EPS).collect();
-    vmath::ln_in_place(&mut out);
-    out
-}
-
-/// `ln(mⱼ + ε)` with `m = (p + q)/2`, into `out`.
-fn ln_mean_eps(p: &[f32], q: &[f32], out: &mut [f32]) {
-    for ((o, pj), qj) in out.iter_mut().zip(p).zip(q) {
-        *o = 0.5 * (pj + qj) + JS_EPS;
+    let mut out = vec![0f32; x.len()];
+    for (o, v) in out.iter_mut().zip(x) {
+        *o = vmath::ln(v + JS_EPS);
     }
-    vmath::ln_in_place(out);
+    out
 }
 
 /// `(∂JS/∂p, ∂JS/∂q)` times the incoming gradient `g` (one value per row), each scaled by its
 /// sign (`None`: no gradient).
+#[inline(always)]
 fn gradients(
     geo: &Geometry,
     pv: &[f32],
@@ -107,24 +103,31 @@ fn gradients(
     // ln(x + ε) is needed only for x's own gradient.
     let ln_p = if p_sign.is_some() { ln_eps(pv) } else { Vec::new() };
     let ln_q = if q_sign.is_some() { ln_eps(qv) } else { Vec::new() };
-    let mut ln_m = vec![0f32; geo.len];
     let mut dp = p_sign.map(|_| vec![0f32; pv.len()]);
     let mut dq = q_sign.map(|_| vec![0f32; qv.len()]);
+    // Per row, shared by both gradients: ln(m + ε) and m/(m + ε).
+    let (mut ln_m, mut ratio_m) = (vec![0f32; geo.len], vec![0f32; geo.len]);
     for (r, (q_row, &g_row)) in qv.chunks_exact(geo.len).zip(gv).enumerate() {
-        let off = (r % geo.p_rows) * geo.len;
+        let (off, row) = ((r % geo.p_rows) * geo.len, r * geo.len);
         let p_row = &pv[off..off + geo.len];
-        ln_mean_eps(p_row, q_row, &mut ln_m);
-        let half_g = 0.5 * g_row;
-        for (j, ((&pj, &qj), &lm)) in p_row.iter().zip(q_row).zip(&ln_m).enumerate() {
+        for (((lm, rm), &pj), &qj) in ln_m.iter_mut().zip(ratio_m.iter_mut()).zip(p_row).zip(q_row) {
             let m = 0.5 * (pj + qj);
-            let rm = m / (m + JS_EPS);
-            if let (Some(d), Some(s)) = (dp.as_mut(), p_sign) {
-                d[off + j] += s * half_g * (ln_p[off + j] - lm + pj / (pj + JS_EPS) - rm);
+            *lm = vmath::ln(m + JS_EPS);
+            *rm = m / (m + JS_EPS);
+        }
+        // One input's gradient row: `s·½g·(ln(x + ε) − ln(m + ε) + x/(x + ε) − m/(m + ε))`,
+        // accumulated (a p shared by the batch sums over it).
+        let accumulate = |d: &mut [f32], x: &[f32], ln_x: &[f32], s: f32| {
+            let k = s * 0.5 * g_row;
+            for ((((dj, &xj), &lx), &lm), &rm) in d.iter_mut().zip(x).zip(ln_x).zip(&ln_m).zip(&ratio_m) {
+                *dj += k * (lx - lm + xj / (xj + JS_EPS) - rm);
             }
-            if let (Some(d), Some(s)) = (dq.as_mut(), q_sign) {
-                let k = r * geo.len + j;
-                d[k] = s * half_g * (ln_q[k] - lm + qj / (qj + JS_EPS) - rm);
-            }
+        };
+        if let (Some(d), Some(s)) = (dp.as_mut(), p_sign) {
+            accumulate(&mut d[off..off + geo.len], p_row, &ln_p[off..off + geo.len], s);
+        }
+        if let (Some(d), Some(s)) = (dq.as_mut(), q_sign) {
+            accumulate(&mut d[row..row + geo.len], q_row, &ln_q[row..row + geo.len], s);
         }
     }
     (dp, dq)
@@ -144,20 +147,25 @@ impl CustomOp2 for JsDivergence {
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let g = geometry(l1.shape(), l2.shape())?;
         let (p, q) = (f32_slice(self.name(), s1, l1)?, f32_slice(self.name(), s2, l2)?);
-        // ln(p + ε) once per row of p (once per batch when p is shared).
-        let ln_p = ln_eps(p);
-        let (ln_q, mut ln_m) = (ln_eps(q), vec![0f32; g.len]);
-        let mut out = Vec::with_capacity(g.rows);
-        for (r, (q_row, lq_row)) in q.chunks_exact(g.len).zip(ln_q.chunks_exact(g.len)).enumerate() {
-            let off = (r % g.p_rows) * g.len;
-            let (p_row, lp_row) = (&p[off..off + g.len], &ln_p[off..off + g.len]);
-            ln_mean_eps(p_row, q_row, &mut ln_m);
-            let mut acc = [0f32; 8];
-            for (j, (((&pj, &lpj), &qj), &lqj)) in p_row.iter().zip(lp_row).zip(q_row).zip(lq_row).enumerate() {
-                acc[j % 8] += pj * (lpj - ln_m[j]) + qj * (lqj - ln_m[j]);
-            }
-            out.push(0.5 * acc.iter().sum::<f32>());
-        }
+        let out = vmath::vectorized(
+            #[inline(always)]
+            || {
+                // ln(p + ε) once per row of p (once per batch when p is shared).
+                let ln_p = ln_eps(p);
+                let mut terms = vec![0f32; g.len];
+                let mut out = Vec::with_capacity(g.rows);
+                for (r, q_row) in q.chunks_exact(g.len).enumerate() {
+                    let off = (r % g.p_rows) * g.len;
+                    let (p_row, lp_row) = (&p[off..off + g.len], &ln_p[off..off + g.len]);
+                    for (((t, &pj), &lpj), &qj) in terms.iter_mut().zip(p_row).zip(lp_row).zip(q_row) {
+                        let lm = vmath::ln(0.5 * (pj + qj) + JS_EPS);
+                        *t = pj * (lpj - lm) + qj * (vmath::ln(qj + JS_EPS) - lm);
+                    }
+                    out.push(0.5 * vmath::sum(&terms));
+                }
+                out
+            },
+        );
         let mut dims = l2.shape().dims().to_vec();
         dims.pop();
         Ok((CpuStorage::F32(out), Shape::from(dims)))
@@ -184,7 +192,14 @@ impl CustomOp2 for JsDivergence {
         let geo = geometry(p.shape(), q.shape())?;
         let name = self.name();
         let (dp, dq) = with_f32(name, p, |pv| {
-            with_f32(name, q, |qv| with_f32(name, grad, |gv| Ok(gradients(&geo, pv, qv, gv, p_sign, q_sign))))
+            with_f32(name, q, |qv| {
+                with_f32(name, grad, |gv| {
+                    Ok(vmath::vectorized(
+                        #[inline(always)]
+                        || gradients(&geo, pv, qv, gv, p_sign, q_sign),
+                    ))
+                })
+            })
         })?;
         let wrap = |v: Option<Vec<f32>>, like: &Tensor| -> candle_core::Result<Option<Tensor>> {
             v.map(|v| Tensor::from_vec(v, like.shape(), like.device())).transpose()

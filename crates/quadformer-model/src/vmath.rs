@@ -1,87 +1,200 @@
-//! Element-wise `exp`, `ln` and `erf`, and the sum, of `f32` slices, eight lanes at a time with
-//! the `wide` crate, for the kernels of [`crate::fused`] and [`crate::js`].
+//! Element-wise `exp`, `ln` and `erf` of `f32` written for the compiler's vectoriser, the sums
+//! of the kernels of [`crate::fused`] and [`crate::js`], and [`vectorized`], which runs a loop
+//! with the widest vector instructions the processor has.
 //!
 //! The standard library's `f32::exp`/`ln` call the C library one element at a time, and
 //! candle's `erf` is `libm::erff`; together they were about a fifth of a training step
-//! (perf, `examples/profile.rs train`). `wide`'s `f32x8::exp` and `ln` (Cephes-style
-//! polynomials, within a few units in the last place of `f32`) compile to SIMD instructions.
-//! `erf` has no `wide` version; it is Abramowitz & Stegun 7.1.26,
-//! `erf(x) = 1 − (a₁t + a₂t² + a₃t³ + a₄t⁴ + a₅t⁵) e^{−x²}`, `t = 1/(1 + p|x|)`, odd in `x`,
-//! with an absolute error below `1.5·10⁻⁷` (Handbook of Mathematical Functions, 1964, §7.1.26);
-//! evaluated in `f32` it stays below `5·10⁻⁷` (tested), a few units of `f32` resolution near 1,
-//! which is where GELU adds it.
+//! (perf, `examples/profile.rs train`). The functions here have no branches and no calls, so
+//! a loop over a slice compiles to SIMD instructions:
+//!
+//! - `exp` and `ln` are the Cephes single-precision polynomials (S. L. Moshier, Cephes Math
+//!   Library, `expf.c` and `logf.c`), within a few units in the last place (tested against
+//!   the standard library); `exp` of arguments below `−87.3` (results below the smallest
+//!   normal `f32`) is 0, so no denormal is ever produced.
+//! - `erf` is Abramowitz & Stegun 7.1.26,
+//!   `erf(x) = 1 − (a₁t + a₂t² + a₃t³ + a₄t⁴ + a₅t⁵) e^{−x²}`, `t = 1/(1 + p|x|)`, odd in `x`,
+//!   with an absolute error below `1.5·10⁻⁷` (Handbook of Mathematical Functions, 1964,
+//!   §7.1.26); evaluated in `f32` it stays below `5·10⁻⁷` (tested).
+//!
+//! [`vectorized`] compiles its closure a second time for AVX2 with FMA (x86-64-v3) and picks
+//! that version at run time when the processor has it (`pulp::Arch`, the dispatch candle's
+//! matrix products use). The portable x86-64 build has only 4-wide SSE2. Nothing here
+//! contracts `a·b + c` into a fused multiply-add, so both versions round identically and a
+//! run gives the same numbers on every x86-64 processor (a test checks it).
 
-use wide::f32x8;
+/// Runs `f` compiled for the best instruction set the processor has (module docs). Loops in
+/// `f` over the functions of this module vectorise with it.
+#[inline(always)]
+pub fn vectorized<R>(f: impl FnOnce() -> R) -> R {
+    pulp::Arch::new().dispatch(f)
+}
 
-/// Applies `f` to `xs` in place, eight elements at a time (the tail padded with `pad`).
-fn map_in_place(xs: &mut [f32], pad: f32, f: impl Fn(f32x8) -> f32x8) {
-    let mut chunks = xs.chunks_exact_mut(8);
-    for c in &mut chunks {
-        let mut lanes = [0f32; 8];
-        lanes.copy_from_slice(c);
-        c.copy_from_slice(&f(f32x8::from(lanes)).to_array());
-    }
-    let tail = chunks.into_remainder();
-    if !tail.is_empty() {
-        let mut lanes = [pad; 8];
-        lanes[..tail.len()].copy_from_slice(tail);
-        let out = f(f32x8::from(lanes)).to_array();
-        tail.copy_from_slice(&out[..tail.len()]);
+/// `e^x` (Cephes `expf`; 0 below `−87.3`, `+∞` above `88.7`, NaN stays NaN).
+#[inline(always)]
+pub fn exp(x: f32) -> f32 {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    // ln 2 split in a part exact in a few bits and the rest (Cody–Waite reduction).
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    // 1.5·2²³: adding it rounds to an integer, which its low mantissa bits then hold.
+    const ROUND: f32 = 12_582_912.0;
+    const LO: f32 = -87.336_55; // ln of the smallest normal f32
+    const HI: f32 = 88.376_26; // ln(2¹²⁷·(2 − 2⁻²³)) rounded down, so 2ⁿ stays finite
+    let xc = x.clamp(LO, HI);
+    let t = xc * LOG2E + ROUND;
+    let n = t - ROUND;
+    // n in two's complement (wrapping: a NaN argument gives bits, not an overflow).
+    let k = t.to_bits().wrapping_sub(ROUND.to_bits());
+    let r = (xc - n * LN2_HI) - n * LN2_LO;
+    // Cephes's last coefficient, 5.0000001201e−1, is 0.5 in f32.
+    let p = ((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2) * r + 1.666_666_5e-1)
+        * r
+        + 0.5;
+    let er = p * (r * r) + r + 1.0;
+    let y = er * f32::from_bits(k.wrapping_add(127) << 23);
+    if x < LO {
+        0.0
+    } else if x > HI {
+        f32::INFINITY
+    } else {
+        y
     }
 }
 
-/// `Σᵢ xᵢ`, summed in eight interleaved partial sums (which the compiler vectorises; a plain
-/// running sum is one dependent addition per element).
-pub fn sum(xs: &[f32]) -> f32 {
-    let mut acc = f32x8::ZERO;
-    let mut chunks = xs.chunks_exact(8);
-    for c in &mut chunks {
-        let mut lanes = [0f32; 8];
-        lanes.copy_from_slice(c);
-        acc += f32x8::from(lanes);
+/// `ln x` (Cephes `logf`; `−∞` at 0, NaN below 0, denormals handled).
+#[inline(always)]
+pub fn ln(x: f32) -> f32 {
+    const SQRT_HALF: f32 = std::f32::consts::FRAC_1_SQRT_2;
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    // Denormals are scaled by 2²³ into the normal range first.
+    let tiny = x < f32::MIN_POSITIVE;
+    let xs = if tiny { x * 8_388_608.0 } else { x };
+    let bits = xs.to_bits();
+    let e0 = ((bits >> 23) & 0xff) as i32 - 126 - if tiny { 23 } else { 0 };
+    // Mantissa in [0.5, 1).
+    let m0 = f32::from_bits((bits & 0x807f_ffff) | 0x3f00_0000);
+    let below = m0 < SQRT_HALF;
+    let e = (e0 - i32::from(below)) as f32;
+    let m = if below { m0 + m0 - 1.0 } else { m0 - 1.0 };
+    let z = m * m;
+    let p = (((((((7.037_683_6e-2 * m - 1.151_461e-1) * m + 1.167_699_9e-1) * m - 1.242_014_1e-1) * m
+        + 1.424_932_3e-1)
+        * m
+        - 1.666_805_8e-1)
+        * m
+        + 2.000_071_4e-1)
+        * m
+        - 2.499_999_4e-1)
+        * m
+        + 3.333_333e-1;
+    let y = p * m * z + e * LN2_LO - 0.5 * z;
+    let r = m + y + e * LN2_HI;
+    if x.is_nan() || x == f32::INFINITY {
+        x
+    } else if x == 0.0 {
+        f32::NEG_INFINITY
+    } else if x < 0.0 {
+        f32::NAN
+    } else {
+        r
     }
-    acc.reduce_add() + chunks.remainder().iter().sum::<f32>()
 }
 
-/// `Σᵢ aᵢ bᵢ` over the common length, summed as [`sum`].
-pub fn dot(a: &[f32], b: &[f32]) -> f32 {
-    let n = a.len().min(b.len());
-    let mut acc = f32x8::ZERO;
-    let (mut ca, mut cb) = (a[..n].chunks_exact(8), b[..n].chunks_exact(8));
-    for (x, y) in (&mut ca).zip(&mut cb) {
-        let (mut lx, mut ly) = ([0f32; 8], [0f32; 8]);
-        lx.copy_from_slice(x);
-        ly.copy_from_slice(y);
-        acc += f32x8::from(lx) * f32x8::from(ly);
-    }
-    acc.reduce_add() + ca.remainder().iter().zip(cb.remainder()).map(|(x, y)| x * y).sum::<f32>()
+/// `erf x` (Abramowitz & Stegun 7.1.26, module docs).
+#[inline(always)]
+pub fn erf(x: f32) -> f32 {
+    const P: f32 = 0.327_591_1;
+    const A: [f32; 5] = [0.254_829_6, -0.284_496_74, 1.421_413_8, -1.453_152, 1.061_405_4];
+    let ax = x.abs();
+    let t = 1.0 / (P * ax + 1.0);
+    let poly = (((A[4] * t + A[3]) * t + A[2]) * t + A[1]) * t + A[0];
+    let magnitude = 1.0 - poly * t * exp(-(ax * ax));
+    // erf is odd.
+    magnitude.copysign(x)
 }
 
 /// `xᵢ ← e^{xᵢ}`.
 pub fn exp_in_place(xs: &mut [f32]) {
-    map_in_place(xs, 0.0, f32x8::exp);
+    vectorized(
+        #[inline(always)]
+        || {
+            for x in xs.iter_mut() {
+                *x = exp(*x);
+            }
+        },
+    );
 }
 
 /// `xᵢ ← ln xᵢ`.
 pub fn ln_in_place(xs: &mut [f32]) {
-    map_in_place(xs, 1.0, f32x8::ln);
+    vectorized(
+        #[inline(always)]
+        || {
+            for x in xs.iter_mut() {
+                *x = ln(*x);
+            }
+        },
+    );
 }
 
-/// `xᵢ ← erf xᵢ` (Abramowitz & Stegun 7.1.26, module docs).
+/// `xᵢ ← erf xᵢ`.
 pub fn erf_in_place(xs: &mut [f32]) {
-    map_in_place(xs, 0.0, erf_x8);
+    vectorized(
+        #[inline(always)]
+        || {
+            for x in xs.iter_mut() {
+                *x = erf(*x);
+            }
+        },
+    );
 }
 
-fn erf_x8(x: f32x8) -> f32x8 {
-    const P: f32 = 0.327_591_1;
-    const A: [f32; 5] = [0.254_829_6, -0.284_496_74, 1.421_413_8, -1.453_152, 1.061_405_4];
-    let ax = x.abs();
-    let t = f32x8::ONE / (f32x8::splat(P) * ax + f32x8::ONE);
-    let poly = (((f32x8::splat(A[4]) * t + A[3]) * t + A[2]) * t + A[1]) * t + A[0];
-    let tail = poly * t * (-(ax * ax)).exp();
-    let magnitude = f32x8::ONE - tail;
-    // erf is odd.
-    x.is_sign_negative().select(-magnitude, magnitude)
+/// `Σᵢ xᵢ`, in eight interleaved partial sums (which vectorise; a plain running sum is one
+/// dependent addition per element). The order is fixed, so the result is too.
+#[inline(always)]
+pub fn sum(xs: &[f32]) -> f32 {
+    let mut acc = [0f32; 8];
+    let mut chunks = xs.chunks_exact(8);
+    for c in &mut chunks {
+        for (a, v) in acc.iter_mut().zip(c) {
+            *a += v;
+        }
+    }
+    reduce(acc) + chunks.remainder().iter().sum::<f32>()
+}
+
+/// `Σᵢ aᵢ bᵢ` over the common length, summed as [`sum`].
+#[inline(always)]
+pub fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let n = a.len().min(b.len());
+    let mut acc = [0f32; 8];
+    let (mut ca, mut cb) = (a[..n].chunks_exact(8), b[..n].chunks_exact(8));
+    for (x, y) in (&mut ca).zip(&mut cb) {
+        for ((s, u), v) in acc.iter_mut().zip(x).zip(y) {
+            *s += u * v;
+        }
+    }
+    reduce(acc) + ca.remainder().iter().zip(cb.remainder()).map(|(x, y)| x * y).sum::<f32>()
+}
+
+/// `maxᵢ xᵢ` (`−∞` for an empty slice; NaN elements are skipped), in eight lanes.
+#[inline(always)]
+pub fn max(xs: &[f32]) -> f32 {
+    let mut acc = [f32::NEG_INFINITY; 8];
+    let mut chunks = xs.chunks_exact(8);
+    for c in &mut chunks {
+        for (a, &v) in acc.iter_mut().zip(c) {
+            *a = if v > *a { v } else { *a };
+        }
+    }
+    acc.into_iter().chain(chunks.remainder().iter().copied()).fold(f32::NEG_INFINITY, |a, v| if v > a { v } else { a })
+}
+
+/// The eight partial sums added pairwise.
+#[inline(always)]
+fn reduce(a: [f32; 8]) -> f32 {
+    ((a[0] + a[4]) + (a[2] + a[6])) + ((a[1] + a[5]) + (a[3] + a[7]))
 }
 
 #[cfg(test)]
@@ -103,13 +216,26 @@ mod tests {
             let want = x.exp();
             assert!((y - want).abs() <= 4.0 * f32::EPSILON * want, "exp({x}) = {y}, want {want}");
         }
-        let xs: Vec<f32> = grid(-30.0, 30.0, 10_001).iter().map(|v| v.exp()).chain([1e-8, 1.0, 2.0]).collect();
+        let xs: Vec<f32> = grid(-30.0, 30.0, 10_001).iter().map(|v| v.exp()).chain([1e-8, 1.0, 2.0, 1e-40]).collect();
         let mut l = xs.clone();
         ln_in_place(&mut l);
         for (x, y) in xs.iter().zip(&l) {
             let want = x.ln();
             assert!((y - want).abs() <= 4.0 * f32::EPSILON * want.abs().max(1.0), "ln({x}) = {y}, want {want}");
         }
+    }
+
+    #[test]
+    fn special_values_follow_the_standard_library() {
+        let mut e = vec![-100.0, -87.5, 0.0, 89.0, f32::INFINITY, f32::NEG_INFINITY, f32::NAN];
+        exp_in_place(&mut e);
+        assert_eq!(e[..6], [0.0, 0.0, 1.0, f32::INFINITY, f32::INFINITY, 0.0]);
+        assert!(e[6].is_nan());
+        let mut l = vec![0.0, -1.0, 1.0, f32::INFINITY, f32::NAN, f32::MIN_POSITIVE / 4.0];
+        ln_in_place(&mut l);
+        assert_eq!([l[0], l[2], l[3]], [f32::NEG_INFINITY, 0.0, f32::INFINITY]);
+        assert!(l[1].is_nan() && l[4].is_nan());
+        assert!((l[5] - (f32::MIN_POSITIVE / 4.0).ln()).abs() < 1e-5);
     }
 
     #[test]
@@ -127,6 +253,23 @@ mod tests {
         assert_eq!(a, b.iter().map(|v| -v).collect::<Vec<_>>());
     }
 
+    #[test]
+    fn the_dispatched_loops_round_as_the_portable_build() {
+        // The slice functions run through `vectorized` (AVX2 where the processor has it);
+        // the scalar calls here are compiled for the portable target.
+        let xs = grid(-20.0, 20.0, 4_001);
+        let (mut e, mut l, mut f) = (xs.clone(), xs.iter().map(|v| v.abs()).collect::<Vec<_>>(), xs.clone());
+        exp_in_place(&mut e);
+        erf_in_place(&mut f);
+        let abs: Vec<f32> = l.clone();
+        ln_in_place(&mut l);
+        for (i, &x) in xs.iter().enumerate() {
+            assert_eq!(e[i].to_bits(), std::hint::black_box(exp)(x).to_bits(), "exp({x})");
+            assert_eq!(f[i].to_bits(), std::hint::black_box(erf)(x).to_bits(), "erf({x})");
+            assert_eq!(l[i].to_bits(), std::hint::black_box(ln)(abs[i]).to_bits(), "ln({})", abs[i]);
+        }
+    }
+
     proptest! {
         #[test]
         fn every_length_is_handled(xs in proptest::collection::vec(-10f32..10.0, 0..40)) {
@@ -134,6 +277,7 @@ mod tests {
             prop_assert!((f64::from(sum(&xs)) - plain).abs() < 1e-4);
             let squares: f64 = xs.iter().map(|&v| f64::from(v) * f64::from(v)).sum();
             prop_assert!((f64::from(dot(&xs, &xs)) - squares).abs() < 1e-4 * (1.0 + squares));
+            prop_assert_eq!(max(&xs), xs.iter().copied().fold(f32::NEG_INFINITY, f32::max));
             let mut e = xs.clone();
             exp_in_place(&mut e);
             for (x, y) in xs.iter().zip(&e) {
