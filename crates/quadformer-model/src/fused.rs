@@ -14,8 +14,9 @@
 //!   candle 0.11 is a strided scalar sum; a rank-1 product, [`crate::layers::repeat_rows`],
 //!   costs a matrix product and an addition forward and back);
 //! - GELU `y = x Φ(x)`, `Φ(x) = ½(1 + erf(x/√2))`: `∂y/∂x = Φ(x) + x φ(x)`,
-//!   `φ(x) = e^{−x²/2}/√(2π)`, with `erf`, `exp` and `ln` from [`crate::vmath`] (eight lanes at
-//!   a time; the forward differs from candle's `gelu_erf` by less than `3·10⁻⁷ |x|`).
+//!   `φ(x) = e^{−x²/2}/√(2π)`, with `erf` and `exp` from [`crate::vmath`] (every kernel's loop
+//!   runs in [`crate::vmath::vectorized`]; the forward differs from candle's `gelu_erf` by
+//!   less than `3·10⁻⁷ |x|`).
 //! - softmax `yⱼ = e^{sⱼ}/Σₖ e^{sₖ}`: `∂/∂sⱼ = yⱼ (gⱼ − Σₖ gₖ yₖ)`.
 //! - layer norm `yⱼ = x̂ⱼ γⱼ + βⱼ`, `x̂ = (x − μ)/σ`, `σ = √(var + ε)`:
 //!   `∂/∂x = (ĝ − mean(ĝ) − x̂ · mean(ĝ ⊙ x̂))/σ` with `ĝ = g ⊙ γ`; `∂/∂γ = Σ_rows g ⊙ x̂`,
