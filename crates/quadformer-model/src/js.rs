@@ -10,10 +10,10 @@
 //!
 //! Composed from candle's element-wise ops the divergence and its gradient took about 20 % of
 //! a training step: a dozen passes over every `b × heads × l × l` map, each allocating its
-//! result and, backwards, a zero-filled gradient. The kernel makes one pass forward and one
-//! backward, vectorised ([`crate::vmath`]). `p` may be shared by the
-//! batch (leading axis 1, the TPC prior); its gradient is then summed over the batch. Each input's gradient is passed, stopped or reversed
-//! ([`GradFlow`]), which is how the min-max phases split the discrepancy.
+//! result and, backwards, a zero-filled gradient. The kernel makes one vectorised pass forward
+//! and one backward ([`crate::vmath`]). `p` may be shared by the batch (leading axis 1, the
+//! TPC prior); its gradient is then summed over the batch. Each input's gradient is passed,
+//! stopped or reversed ([`GradFlow`]), which is how the min-max phases split the discrepancy.
 
 use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 
@@ -115,22 +115,25 @@ fn gradients(
             *lm = vmath::ln(m + JS_EPS);
             *rm = m / (m + JS_EPS);
         }
-        // One input's gradient row: `s·½g·(ln(x + ε) − ln(m + ε) + x/(x + ε) − m/(m + ε))`,
-        // accumulated (a p shared by the batch sums over it).
-        let accumulate = |d: &mut [f32], x: &[f32], ln_x: &[f32], s: f32| {
-            let k = s * 0.5 * g_row;
-            for ((((dj, &xj), &lx), &lm), &rm) in d.iter_mut().zip(x).zip(ln_x).zip(&ln_m).zip(&ratio_m) {
-                *dj += k * (lx - lm + xj / (xj + JS_EPS) - rm);
-            }
-        };
         if let (Some(d), Some(s)) = (dp.as_mut(), p_sign) {
-            accumulate(&mut d[off..off + geo.len], p_row, &ln_p[off..off + geo.len], s);
+            let k = s * 0.5 * g_row;
+            accumulate_row(&mut d[off..off + geo.len], p_row, &ln_p[off..off + geo.len], &ln_m, &ratio_m, k);
         }
         if let (Some(d), Some(s)) = (dq.as_mut(), q_sign) {
-            accumulate(&mut d[row..row + geo.len], q_row, &ln_q[row..row + geo.len], s);
+            let k = s * 0.5 * g_row;
+            accumulate_row(&mut d[row..row + geo.len], q_row, &ln_q[row..row + geo.len], &ln_m, &ratio_m, k);
         }
     }
     (dp, dq)
+}
+
+/// One input's gradient row, `dⱼ += k·(ln(xⱼ + ε) − ln(mⱼ + ε) + xⱼ/(xⱼ + ε) − mⱼ/(mⱼ + ε))`
+/// with `k = ±½g` (accumulated: a `p` shared by the batch sums over it).
+#[inline(always)]
+fn accumulate_row(d: &mut [f32], x: &[f32], ln_x: &[f32], ln_m: &[f32], ratio_m: &[f32], k: f32) {
+    for ((((dj, &xj), &lx), &lm), &rm) in d.iter_mut().zip(x).zip(ln_x).zip(ln_m).zip(ratio_m) {
+        *dj += k * (lx - lm + xj / (xj + JS_EPS) - rm);
+    }
 }
 
 impl CustomOp2 for JsDivergence {
