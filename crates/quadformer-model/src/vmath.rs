@@ -19,17 +19,21 @@
 //! [`vectorized`] compiles its closure a second time for AVX2 with FMA (x86-64-v3) and picks
 //! that version at run time when the processor has it (`pulp::Arch`, the dispatch candle's
 //! matrix products use). The portable x86-64 build has only 4-wide SSE2. Nothing here
-//! contracts `a·b + c` into a fused multiply-add, so both versions round identically and a
-//! run gives the same numbers on every x86-64 processor (a test checks it).
+//! contracts `a·b + c` into a fused multiply-add, so both versions round identically: these
+//! functions give the same bits on every x86-64 processor (a test checks it). candle's matrix
+//! products, which use FMA where the processor has it, are not bit-identical across processors.
 
 /// Runs `f` compiled for the best instruction set the processor has (module docs). Loops in
-/// `f` over the functions of this module vectorise with it.
+/// `f` over the functions of this module vectorise with it. Mark the closure
+/// `#[inline(always)]`: a closure the compiler keeps out of line is compiled for the portable
+/// target only.
 #[inline(always)]
 pub fn vectorized<R>(f: impl FnOnce() -> R) -> R {
     pulp::Arch::new().dispatch(f)
 }
 
-/// `e^x` (Cephes `expf`; 0 below `−87.3`, `+∞` above `88.7`, NaN stays NaN).
+/// `e^x` (Cephes `expf`; 0 below `−87.34`, `+∞` above `88.38` (the exact result overflows at
+/// 88.72), NaN stays NaN).
 #[inline(always)]
 pub fn exp(x: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
