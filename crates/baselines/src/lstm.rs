@@ -232,7 +232,6 @@ mod tests {
 
     use super::*;
 
-    /// Values and gradients agree with `candle_nn::LSTM` on the same variables.
     /// The cell composed from candle's ops, as `candle_nn::LSTM` computes it.
     fn composed_cell(gates: &Tensor, c_prev: &Tensor, h: usize) -> Tensor {
         let sig = |k: usize| candle_nn::ops::sigmoid(&gates.narrow(1, k * h, h).unwrap()).unwrap();
@@ -274,6 +273,7 @@ mod tests {
         assert!(lstm_cell(&gates, &Tensor::zeros((2, 2), DType::F32, &Device::Cpu).unwrap()).is_ok());
     }
 
+    /// Values and gradients agree with `candle_nn::LSTM` on the same variables.
     #[test]
     fn matches_candle_nn_lstm() {
         let vm = VarMap::new();

@@ -115,13 +115,12 @@ fn gradients(
             *lm = vmath::ln(m + JS_EPS);
             *rm = m / (m + JS_EPS);
         }
+        let half_g = 0.5 * g_row;
         if let (Some(d), Some(s)) = (dp.as_mut(), p_sign) {
-            let k = s * 0.5 * g_row;
-            accumulate_row(&mut d[off..off + geo.len], p_row, &ln_p[off..off + geo.len], &ln_m, &ratio_m, k);
+            accumulate_row(&mut d[off..off + geo.len], p_row, &ln_p[off..off + geo.len], &ln_m, &ratio_m, s * half_g);
         }
         if let (Some(d), Some(s)) = (dq.as_mut(), q_sign) {
-            let k = s * 0.5 * g_row;
-            accumulate_row(&mut d[row..row + geo.len], q_row, &ln_q[row..row + geo.len], &ln_m, &ratio_m, k);
+            accumulate_row(&mut d[row..row + geo.len], q_row, &ln_q[row..row + geo.len], &ln_m, &ratio_m, s * half_g);
         }
     }
     (dp, dq)

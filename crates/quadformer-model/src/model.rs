@@ -473,8 +473,9 @@ impl QuadFormerNet {
             let out_rows = if last_layer { rows } else { l };
             // Queries of every step only when the attention is kept.
             let q_rows = if keep_attn { l } else { out_rows };
-            let q_in = if q_rows == l { h.clone() } else { last_row(&h)? };
-            let q = split(layer.w_q.forward(&q_in)?, q_rows)?;
+            // The residual's rows; the queries' rows are the same ones or all `l`.
+            let h_res = if out_rows == l { h.clone() } else { last_row(&h)? };
+            let q = split(layer.w_q.forward(if q_rows == l { &h } else { &h_res })?, q_rows)?;
             // With DCM a layer's keys serve the next layer, so the last layer's are never used.
             let k = if self.cfg.dcm && idx > 0 && last_layer { None } else { Some(split(layer.w_k.forward(&h)?, l)?) };
             let v = split(layer.w_v.forward(&h)?, l)?;
@@ -487,7 +488,6 @@ impl QuadFormerNet {
             let scores = (q.matmul(&keys.t()?)? * scale)?;
             let c = softmax_last_dim(&scores)?;
             let c_out = if q_rows == out_rows { c.clone() } else { c.narrow(2, l - 1, 1)? };
-            let h_res = if out_rows == l { h.clone() } else { last_row(&h)? };
             if keep_attn {
                 prior.push(match (&layer.log_gamma, &layer.sigma, &self.prior_cache) {
                     (Some(_), _, Some(cache)) if idx < cache.len() => cache[idx].clone(),
