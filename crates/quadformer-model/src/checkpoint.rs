@@ -17,6 +17,7 @@ use sha2::{Digest, Sha256};
 use crate::detector::{ModeResult, QuadFormerConfig, QuadFormerDetector};
 use crate::error::{ModelError, Result};
 use crate::model::QuadFormerNet;
+use crate::streaming::StreamingNet;
 use crate::window::Normaliser;
 
 /// Format name written into every manifest.
@@ -166,6 +167,7 @@ impl QuadFormerDetector {
         net.freeze()?;
         Ok(QuadFormerDetector {
             config: manifest.config,
+            streaming: StreamingNet::new(&net)?,
             net,
             norm: manifest.normaliser,
             chosen: manifest.chosen,

@@ -14,8 +14,6 @@
 //! ([`QuadFormerDetector::mode_results`], the ablation table); the mode with the best
 //! validation F1 is used unless one is forced. Early stopping uses the same validation F1.
 
-use std::collections::VecDeque;
-
 use candle_core::{D, Device, Tensor};
 use ekf_residue::{
     DetectError, Detector, Fit, LabelledResidues, OnlineDecision, OnlineDetector, ResidueError, ResidueSeries,
@@ -25,6 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
 use crate::model::{GradFlow, LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet, Steps};
+use crate::streaming::StreamingNet;
 use crate::train::{TrainConfig, TrainReport, train};
 use crate::window::{Normaliser, WindowConfig, Windows};
 
@@ -311,6 +310,8 @@ fn chosen(results: &[ModeResult], forced: Option<ScoreMode>) -> Result<ModeResul
 pub struct QuadFormerDetector {
     pub(crate) config: QuadFormerConfig,
     pub(crate) net: QuadFormerNet,
+    /// The network prepared for streaming, cloned by each [`OnlineQuadFormer`].
+    pub(crate) streaming: StreamingNet,
     pub(crate) norm: Normaliser,
     pub(crate) chosen: ModeResult,
     pub(crate) crit_scale: f64,
@@ -366,6 +367,7 @@ impl Fit for QuadFormerConfig {
         let chosen = chosen(&cal.results, self.score.mode)?;
         Ok(QuadFormerDetector {
             config: self.clone(),
+            streaming: StreamingNet::new(&net)?,
             net,
             norm,
             chosen,
@@ -457,79 +459,70 @@ impl Detector for QuadFormerDetector {
     }
 }
 
-/// Streaming QUADFormer: keeps the last `l` normalised residues and scores each new step as the
-/// last position of the window that ends at it (causal; a batch [`Detector::score`] averages
-/// over all windows covering a step, so the two differ slightly). Until `l` steps have been
-/// seen the window is padded at the front with the first step, as in [`crate::window`].
+/// Streaming QUADFormer: scores each new step as the last position of the window of the `l`
+/// latest normalised residues (causal; a batch [`Detector::score`] averages over all windows
+/// covering a step, so the two differ slightly). Until `l` steps have been seen the window is
+/// padded at the front with the first step, as in [`crate::window`]. The network runs in a
+/// [`StreamingNet`], which reuses the previous windows' work on layer 1 and allocates nothing,
+/// and computes the TCD of the window only for the modes that read it.
 pub struct OnlineQuadFormer<'a> {
     det: &'a QuadFormerDetector,
-    rows: VecDeque<Vec<f32>>,
+    net: StreamingNet,
+    /// The newest normalised residue.
     x: Vec<f32>,
-    n_seen: usize,
 }
 
 impl<'a> OnlineQuadFormer<'a> {
     /// A streaming detector with empty history.
     pub fn new(det: &'a QuadFormerDetector) -> Self {
-        let (l, m) = (det.net.window_len(), det.net.dim());
-        Self { det, rows: VecDeque::with_capacity(l + 1), x: vec![0.0; l * m], n_seen: 0 }
+        let m = det.net.dim();
+        Self { det, net: det.streaming.clone(), x: vec![0.0; m] }
     }
 
+    /// The chosen mode's score of the newest step, with the window slid to end at `x`.
     fn score_newest(&mut self) -> Result<f64> {
-        let (l, m) = (self.det.net.window_len(), self.det.net.dim());
-        let pad = l - self.rows.len();
-        for k in 0..l {
-            let row = &self.rows[k.saturating_sub(pad)];
-            self.x[k * m..(k + 1) * m].copy_from_slice(row);
-        }
-        let x = Tensor::from_slice(&self.x, (1, l, m), &Device::Cpu)?;
         let mode = self.det.chosen.mode;
         let need = Need::for_mode(mode);
-        // Only the newest step is scored: the last layer works on that row alone.
-        let steps = Steps::Last { with_tcd: need.alg2 || need.at };
-        let [alg2, at, class] = window_scores(&self.det.net, &x, self.det.config.score.temperature, need, steps)?;
-        let pick = |v: &[f32]| v.first().map_or(f64::NAN, |s| f64::from(*s));
+        let out = self.net.push(&self.x, need.alg2 || need.at)?;
+        let tcd = out.tcd.unwrap_or_default();
+        let at = || last_of_softmax(tcd, -self.det.config.score.temperature) * f64::from(out.recon_err);
+        let class = || 1.0 / (1.0 + (-f64::from(out.logit)).exp());
         Ok(match mode {
-            ScoreMode::Alg2 => pick(&alg2),
-            ScoreMode::AnomalyTransformer => pick(&at),
-            ScoreMode::Classifier => pick(&class),
-            ScoreMode::Combined => combine(pick(&class), pick(&at), self.det.crit_scale),
+            ScoreMode::Alg2 => last_of_softmax(tcd, -1.0),
+            ScoreMode::AnomalyTransformer => at(),
+            ScoreMode::Classifier => class(),
+            ScoreMode::Combined => combine(class(), at(), self.det.crit_scale),
         })
     }
 }
 
+/// The last entry of `softmax(k·v)`, `NaN` for an empty `v`.
+fn last_of_softmax(v: &[f32], k: f64) -> f64 {
+    let Some(&last) = v.last() else { return f64::NAN };
+    let max = v.iter().map(|&x| k * f64::from(x)).fold(f64::NEG_INFINITY, f64::max);
+    let sum: f64 = v.iter().map(|&x| (k * f64::from(x) - max).exp()).sum();
+    (k * f64::from(last) - max).exp() / sum
+}
+
 impl OnlineDetector for OnlineQuadFormer<'_> {
     fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
-        let m = self.det.net.dim();
+        let (m, k) = (self.det.net.dim(), self.net.n_seen());
         if step.dim() != m {
-            return Err(
-                ResidueError::StepDim { step_idx: self.n_seen, what: "r_k", expected: m, got: step.dim() }.into()
-            );
+            return Err(ResidueError::StepDim { step_idx: k, what: "r_k", expected: m, got: step.dim() }.into());
         }
         if step.r_k.iter().any(|v| !v.is_finite()) {
-            return Err(ResidueError::NonFinite { step_idx: self.n_seen, what: "r_k" }.into());
+            return Err(ResidueError::NonFinite { step_idx: k, what: "r_k" }.into());
         }
-        let mut row = if self.rows.len() == self.det.net.window_len() {
-            self.rows.pop_front().unwrap_or_default()
-        } else {
-            Vec::new()
-        };
-        row.resize(m, 0.0);
-        self.det.norm.apply(step.r_k, &mut row);
-        self.rows.push_back(row);
-        self.n_seen += 1;
+        self.det.norm.apply(step.r_k, &mut self.x);
         let score = self.score_newest()?;
         if !score.is_finite() {
-            return Err(DetectError::Numerical {
-                what: format!("non-finite QUADFormer score at step {}", self.n_seen - 1),
-            });
+            return Err(DetectError::Numerical { what: format!("non-finite QUADFormer score at step {k}") });
         }
         Ok(OnlineDecision { score, alarm: score > self.det.chosen.threshold })
     }
 
     fn reset(&mut self) {
-        self.rows.clear();
-        self.n_seen = 0;
+        self.net.reset();
     }
 }
 

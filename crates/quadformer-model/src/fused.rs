@@ -74,6 +74,55 @@ pub fn layer_norm(x: &Tensor, gain: &Tensor, bias: &Tensor, eps: f32) -> candle_
     }
 }
 
+/// The erf GELU of one value. Like every kernel below it is inlined into its caller, which
+/// runs it inside [`vmath::vectorized`]; the streaming engine ([`crate::streaming`]) calls
+/// the same kernels, so both paths compute the same element-wise values.
+#[inline(always)]
+pub(crate) fn gelu_value(v: f32) -> f32 {
+    (vmath::erf(v * std::f32::consts::FRAC_1_SQRT_2) + 1.0) * 0.5 * v
+}
+
+/// `row + bias`, in place.
+#[inline(always)]
+pub(crate) fn add_bias_row(row: &mut [f32], bias: &[f32]) {
+    for (yj, bj) in row.iter_mut().zip(bias) {
+        *yj += bj;
+    }
+}
+
+/// Softmax of one row, in place.
+#[inline(always)]
+pub(crate) fn softmax_row(row: &mut [f32]) {
+    let max = vmath::max(row);
+    for y in row.iter_mut() {
+        *y = vmath::exp(*y - max);
+    }
+    let sum = vmath::sum(row);
+    for y in row.iter_mut() {
+        *y /= sum;
+    }
+}
+
+/// Replaces a row by `x − μ` and returns `1/σ`, `σ = √(var + eps)`.
+#[inline(always)]
+fn centre_row(row: &mut [f32], eps: f32) -> f32 {
+    let n = row.len() as f32;
+    let mu = vmath::sum(row) / n;
+    for x in row.iter_mut() {
+        *x -= mu;
+    }
+    1.0 / (vmath::dot(row, row) / n + eps).sqrt()
+}
+
+/// Layer norm of one row with gain `γ` and bias `β`, in place.
+#[inline(always)]
+pub(crate) fn layer_norm_row(row: &mut [f32], gain: &[f32], bias: &[f32], eps: f32) {
+    let inv_sigma = centre_row(row, eps);
+    for ((yj, &gj), &bj) in row.iter_mut().zip(gain).zip(bias) {
+        *yj = *yj * inv_sigma * gj + bj;
+    }
+}
+
 /// The contiguous `f32` elements of a storage (for a custom op's `cpu_fwd`).
 ///
 /// # Errors
@@ -135,9 +184,7 @@ impl CustomOp2 for AddBias {
             #[inline(always)]
             || {
                 for row in y.chunks_exact_mut(d) {
-                    for (yj, bj) in row.iter_mut().zip(bias) {
-                        *yj += bj;
-                    }
+                    add_bias_row(row, bias);
                 }
             },
         );
@@ -184,7 +231,7 @@ impl CustomOp1 for Gelu {
             #[inline(always)]
             || {
                 for (yj, &v) in y.iter_mut().zip(x) {
-                    *yj = (vmath::erf(v * std::f32::consts::FRAC_1_SQRT_2) + 1.0) * 0.5 * v;
+                    *yj = gelu_value(v);
                 }
             },
         );
@@ -224,19 +271,12 @@ impl CustomOp1 for Softmax {
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
         let len = last_dim(self.name(), l.shape())?;
         let x = f32_slice(self.name(), s, l)?;
-        let mut y = vec![0f32; x.len()];
+        let mut y = x.to_vec();
         vmath::vectorized(
             #[inline(always)]
             || {
-                for (xr, yr) in x.chunks_exact(len).zip(y.chunks_exact_mut(len)) {
-                    let max = vmath::max(xr);
-                    for (yj, &xj) in yr.iter_mut().zip(xr) {
-                        *yj = vmath::exp(xj - max);
-                    }
-                    let sum = vmath::sum(yr);
-                    for yj in yr.iter_mut() {
-                        *yj /= sum;
-                    }
+                for row in y.chunks_exact_mut(len) {
+                    softmax_row(row);
                 }
             },
         );
@@ -279,17 +319,6 @@ impl LayerNorm {
         }
         Ok(d)
     }
-
-    /// Writes the centred row `x − μ` into `centred` and returns `1/σ`.
-    #[inline(always)]
-    fn centre(&self, row: &[f32], centred: &mut [f32]) -> f32 {
-        let n = row.len() as f32;
-        let mu = vmath::sum(row) / n;
-        for (c, x) in centred.iter_mut().zip(row) {
-            *c = x - mu;
-        }
-        1.0 / (vmath::dot(centred, centred) / n + self.eps).sqrt()
-    }
 }
 
 impl CustomOp3 for LayerNorm {
@@ -309,15 +338,12 @@ impl CustomOp3 for LayerNorm {
         let d = self.check(l1.shape(), l2.shape(), l3.shape())?;
         let (x, gain, bias) =
             (f32_slice(self.name(), s1, l1)?, f32_slice(self.name(), s2, l2)?, f32_slice(self.name(), s3, l3)?);
-        let mut y = vec![0f32; x.len()];
+        let mut y = x.to_vec();
         vmath::vectorized(
             #[inline(always)]
             || {
-                for (xr, yr) in x.chunks_exact(d).zip(y.chunks_exact_mut(d)) {
-                    let inv_sigma = self.centre(xr, yr);
-                    for ((yj, &gj), &bj) in yr.iter_mut().zip(gain).zip(bias) {
-                        *yj = *yj * inv_sigma * gj + bj;
-                    }
+                for row in y.chunks_exact_mut(d) {
+                    layer_norm_row(row, gain, bias, self.eps);
                 }
             },
         );
@@ -345,7 +371,8 @@ impl CustomOp3 for LayerNorm {
                             let mut ghat = vec![0f32; d];
                             for ((xr, gr), dr) in xv.chunks_exact(d).zip(g.chunks_exact(d)).zip(dx.chunks_exact_mut(d))
                             {
-                                let inv_sigma = self.centre(xr, &mut xhat);
+                                xhat.copy_from_slice(xr);
+                                let inv_sigma = centre_row(&mut xhat, self.eps);
                                 for j in 0..d {
                                     xhat[j] *= inv_sigma;
                                     ghat[j] = gr[j] * gamma[j];

@@ -79,9 +79,21 @@ fn geometry(p: &Shape, q: &Shape) -> candle_core::Result<Geometry> {
     Ok(Geometry { len, rows: q.elem_count() / len, p_rows: p.elem_count() / len })
 }
 
+/// `JS(p, q)` of one row from `p`, its `ln(p + ε)` and `q`, with `terms` (the row's length)
+/// as scratch. Inlined into a loop that runs in [`vmath::vectorized`]; the streaming engine
+/// ([`crate::streaming`]) calls it too.
+#[inline(always)]
+pub(crate) fn js_row(p: &[f32], ln_p: &[f32], q: &[f32], terms: &mut [f32]) -> f32 {
+    for (((t, &pj), &lpj), &qj) in terms.iter_mut().zip(p).zip(ln_p).zip(q) {
+        let lm = vmath::ln(0.5 * (pj + qj) + JS_EPS);
+        *t = pj * (lpj - lm) + qj * (vmath::ln(qj + JS_EPS) - lm);
+    }
+    0.5 * vmath::sum(terms)
+}
+
 /// `ln(xⱼ + ε)` of every element.
 #[inline(always)]
-fn ln_eps(x: &[f32]) -> Vec<f32> {
+pub(crate) fn ln_eps(x: &[f32]) -> Vec<f32> {
     let mut out = vec![0f32; x.len()];
     for (o, v) in out.iter_mut().zip(x) {
         *o = vmath::ln(v + JS_EPS);
@@ -158,12 +170,7 @@ impl CustomOp2 for JsDivergence {
                 let mut out = Vec::with_capacity(g.rows);
                 for (r, q_row) in q.chunks_exact(g.len).enumerate() {
                     let off = (r % g.p_rows) * g.len;
-                    let (p_row, lp_row) = (&p[off..off + g.len], &ln_p[off..off + g.len]);
-                    for (((t, &pj), &lpj), &qj) in terms.iter_mut().zip(p_row).zip(lp_row).zip(q_row) {
-                        let lm = vmath::ln(0.5 * (pj + qj) + JS_EPS);
-                        *t = pj * (lpj - lm) + qj * (vmath::ln(qj + JS_EPS) - lm);
-                    }
-                    out.push(0.5 * vmath::sum(&terms));
+                    out.push(js_row(&p[off..off + g.len], &ln_p[off..off + g.len], q_row, &mut terms));
                 }
                 out
             },

@@ -15,7 +15,7 @@ use candle_core::Tensor;
 use candle_nn::{Init, VarBuilder};
 
 /// Layer-norm variance guard (PyTorch default).
-const LN_EPS: f32 = 1e-5;
+pub(crate) const LN_EPS: f32 = 1e-5;
 
 /// `v` (any shape, `d` elements) repeated over `n` rows: `n × d`, equal to
 /// `v.reshape((1, d)).broadcast_as((n, d))`, with a gradient computed as a matrix product

@@ -395,6 +395,23 @@ impl QuadFormerNet {
         Ok(())
     }
 
+    /// The sinusoidal positional encoding, `1 × l × d_model`.
+    pub(crate) fn positional_encoding(&self) -> &Tensor {
+        &self.pos
+    }
+
+    /// Every layer's TPC prior, `1 × heads × l × l` each (the frozen ones after
+    /// [`QuadFormerNet::freeze`]); empty for the Gaussian prior.
+    ///
+    /// # Errors
+    /// candle errors.
+    pub(crate) fn tpc_priors(&self) -> candle_core::Result<Vec<Tensor>> {
+        if let Some(cache) = &self.prior_cache {
+            return Ok(cache.clone());
+        }
+        self.layers.iter().filter_map(|layer| layer.log_gamma.as_ref()).map(|lg| self.tpc(lg)).collect()
+    }
+
     /// Drops the inference cache (before training again).
     pub fn thaw(&mut self) {
         self.prior_cache = None;

@@ -1,0 +1,593 @@
+//! Streaming inference of a trained QUADFormer network: the outputs of the newest step of a
+//! sliding window (reconstruction, classifier logit and, when asked, the TCD of every step),
+//! updated one residue at a time with the work and memory fixed in advance.
+//!
+//! It computes what [`QuadFormerNet::forward_steps`] with [`Steps::Last`] computes, from the
+//! same weights, in plain `f32` buffers ([`crate::matmul`], the element-wise kernels of
+//! [`crate::fused`] and [`crate::js`]), and does less work in three exact ways:
+//!
+//! 1. **Layer 1 is linear in each residue.** Its input is `h⁰ᵢ = xᵢ W_e + b_e + PEᵢ` and its
+//!    projections `Q¹ᵢ = h⁰ᵢ W_Q + b_Q` (likewise `K¹`, `V¹`), so each splits into a part of
+//!    the residue, `xᵢ [W_e | W_e W_Q | W_e W_K | W_e W_V]`, and a part of the position. The
+//!    residue part is computed once, when the residue arrives, and kept in a ring of `l`
+//!    slots; the position part is computed once, when the engine is built. A new window's
+//!    layer-1 input and projections are the ring plus the position part: no matrix product.
+//! 2. **The last layer works on the newest row** (as [`Steps::Last`]): one query, one output
+//!    row, one feed-forward row. Its value product is reassociated,
+//!    `c (H W_V + 1 b_V) = (c H) W_V + b_V` (the attention row `c` sums to 1), so the window's
+//!    values are never formed.
+//! 3. **Nothing is allocated** after construction: every intermediate has its buffer.
+//!
+//! The results equal the candle forward pass up to `f32` rounding (reassociated sums; the tests
+//! bound the difference). The TPC priors and their `ln(T + ε)` are frozen at construction; the
+//! Gaussian prior of the "TPC off" ablation depends on the input and is rebuilt per window.
+//!
+//! Until `l` residues have been seen the window is padded at the front with the first one, as
+//! in [`crate::window`].
+
+use candle_core::Tensor;
+
+use crate::error::{ModelError, Result};
+use crate::fused::{add_bias_row, gelu_value, layer_norm_row, softmax_row};
+use crate::js::{JS_EPS, js_row};
+use crate::layers::LN_EPS;
+use crate::matmul::{MatMut, MatRef, matmul};
+use crate::model::{ClassInput, PRIOR_EXP_FLOOR, Prior, QuadFormerNet};
+use crate::vmath;
+
+/// A dense layer `y = x W + b` with `W` stored `in × out` (the transpose of the checkpoint's
+/// `weight`).
+#[derive(Clone)]
+struct Linear {
+    w: Vec<f32>,
+    b: Vec<f32>,
+    n_in: usize,
+    n_out: usize,
+}
+
+impl Linear {
+    /// Reads `{name}.weight` (`out × in`) and `{name}.bias` from the network's variables.
+    fn load(net: &QuadFormerNet, name: &str) -> Result<Self> {
+        let weight = var(net, &format!("{name}.weight"))?;
+        let (n_out, n_in) = weight.dims2()?;
+        let w = weight.t()?.contiguous()?.flatten_all()?.to_vec1::<f32>()?;
+        let b = var(net, &format!("{name}.bias"))?.flatten_all()?.to_vec1::<f32>()?;
+        if b.len() != n_out {
+            return Err(ModelError::Data { msg: format!("{name}.bias has {} values, expected {n_out}", b.len()) });
+        }
+        Ok(Self { w, b, n_in, n_out })
+    }
+
+    /// `dst ← x W + b` for the `rows` rows of `x`.
+    #[inline(always)]
+    fn forward(&self, x: MatRef<'_>, dst: &mut [f32], rows: usize) -> Result<()> {
+        matmul(MatMut::rows(dst, rows, self.n_out)?, x, MatRef::rows(&self.w, self.n_in, self.n_out)?, 1.0, false)?;
+        for row in dst[..rows * self.n_out].chunks_exact_mut(self.n_out) {
+            add_bias_row(row, &self.b);
+        }
+        Ok(())
+    }
+}
+
+/// Gain and bias of a layer norm.
+#[derive(Clone)]
+struct LayerNormW {
+    gain: Vec<f32>,
+    bias: Vec<f32>,
+}
+
+impl LayerNormW {
+    fn load(net: &QuadFormerNet, name: &str) -> Result<Self> {
+        Ok(Self {
+            gain: var(net, &format!("{name}.weight"))?.to_vec1::<f32>()?,
+            bias: var(net, &format!("{name}.bias"))?.to_vec1::<f32>()?,
+        })
+    }
+
+    #[inline(always)]
+    fn apply(&self, rows: &mut [f32]) {
+        for row in rows.chunks_exact_mut(self.gain.len()) {
+            layer_norm_row(row, &self.gain, &self.bias, LN_EPS);
+        }
+    }
+}
+
+/// The value of the variable `name`.
+fn var(net: &QuadFormerNet, name: &str) -> Result<Tensor> {
+    let data = net.varmap().data().lock().map_err(|_| ModelError::Data { msg: "variable map poisoned".into() })?;
+    data.get(name)
+        .map(|v| v.as_tensor().detach())
+        .ok_or_else(|| ModelError::Data { msg: format!("the network has no variable `{name}`") })
+}
+
+/// The prior association `T` of one layer.
+#[derive(Clone)]
+enum LayerPrior {
+    /// Frozen TPC maps `heads × l × l` and their `ln(T + ε)`.
+    Tpc { t: Vec<f32>, ln_t: Vec<f32> },
+    /// Anomaly Transformer's Gaussian kernel; its width is a projection of the layer input.
+    Gaussian { sigma: Linear },
+}
+
+/// One UAV Attack Attention layer's weights.
+#[derive(Clone)]
+struct LayerW {
+    w_q: Linear,
+    w_k: Linear,
+    w_v: Linear,
+    w_o: Linear,
+    norm1: LayerNormW,
+    ff1: Linear,
+    ff2: Linear,
+    norm2: LayerNormW,
+    prior: LayerPrior,
+}
+
+/// The newest step's outputs ([`StreamingNet::push`]).
+#[derive(Debug, Clone, Copy)]
+pub struct StepOutput<'a> {
+    /// Mean over channels of `(R̂ − x)²` at the newest step.
+    pub recon_err: f32,
+    /// Classifier logit at the newest step.
+    pub logit: f32,
+    /// TCD of every step of the window (oldest first), when asked for.
+    pub tcd: Option<&'a [f32]>,
+}
+
+/// Per-window intermediates, allocated once.
+#[derive(Clone)]
+struct Scratch {
+    /// Layer-1 input and projections `[h⁰ | Q¹ | K¹ | V¹]`, `l × 4d`.
+    x0: Vec<f32>,
+    /// A layer's input `H` (`l × d`, layers after the first), then its output.
+    h: Vec<f32>,
+    q: Vec<f32>,
+    /// This layer's keys, and the previous layer's (DCM).
+    k: Vec<f32>,
+    k_prev: Vec<f32>,
+    v: Vec<f32>,
+    /// Attention output (before `W_O`), then `Z` after `W_O`, the residual and the norm.
+    att: Vec<f32>,
+    z: Vec<f32>,
+    /// `c H` of every head (last layer).
+    ctx: Vec<f32>,
+    ff: Vec<f32>,
+    /// Every layer's attention `C` (`heads × rows × l`) and Gaussian prior `T` (`heads × l × l`)
+    /// with its `ln(T + ε)`.
+    attn: Vec<Vec<f32>>,
+    prior: Vec<Vec<f32>>,
+    ln_prior: Vec<Vec<f32>>,
+    /// Gaussian widths of every step and head, `l × heads`.
+    sigma: Vec<f32>,
+    r_hat: Vec<f32>,
+    class: Vec<f32>,
+    logit: Vec<f32>,
+    tcd: Vec<f32>,
+    terms: Vec<f32>,
+}
+
+/// A trained QUADFormer network prepared for streaming (module docs).
+#[derive(Clone)]
+pub struct StreamingNet {
+    l: usize,
+    m: usize,
+    d: usize,
+    heads: usize,
+    dcm: bool,
+    class_input: ClassInput,
+    /// `[W_e | W_e W_Q¹ | W_e W_K¹ | W_e W_V¹]`, `m × 4d`.
+    w_in: Vec<f32>,
+    /// `(b_e + PEᵢ)[I | W_Q¹ | W_K¹ | W_V¹] + [0 | b_Q¹ | b_K¹ | b_V¹]`, `l × 4d`.
+    p_in: Vec<f32>,
+    layers: Vec<LayerW>,
+    recon: Linear,
+    class1: Linear,
+    class2: Linear,
+    /// Residue parts of the window, `l` slots of `4d`; slot `start` holds the oldest step.
+    ring: Vec<f32>,
+    start: usize,
+    n_seen: usize,
+    s: Scratch,
+}
+
+impl StreamingNet {
+    /// Prepares `net` (its current variables; TPC priors from [`QuadFormerNet::freeze`]'s
+    /// cache when frozen).
+    ///
+    /// # Errors
+    /// Missing variables; candle errors.
+    pub fn new(net: &QuadFormerNet) -> Result<Self> {
+        let cfg = net.config();
+        let (l, m, d, heads, n_layers) = (net.window_len(), net.dim(), cfg.d_model, cfg.n_heads, cfg.n_layers);
+        let embed = Linear::load(net, "embed")?;
+        let pos = net.positional_encoding().flatten_all()?.to_vec1::<f32>()?;
+        let mut tpc = net.tpc_priors()?.into_iter();
+        let mut layers = Vec::with_capacity(n_layers);
+        for h in 0..n_layers {
+            let name = |part: &str| format!("layers.{h}.{part}");
+            let prior = match cfg.prior {
+                Prior::Tpc => {
+                    let t = tpc
+                        .next()
+                        .ok_or_else(|| ModelError::Data { msg: format!("layer {h} has no TPC prior") })?
+                        .flatten_all()?
+                        .to_vec1::<f32>()?;
+                    let ln_t = vmath::vectorized(
+                        #[inline(always)]
+                        || crate::js::ln_eps(&t),
+                    );
+                    LayerPrior::Tpc { t, ln_t }
+                }
+                Prior::Gaussian => LayerPrior::Gaussian { sigma: Linear::load(net, &name("attn.sigma"))? },
+            };
+            layers.push(LayerW {
+                w_q: Linear::load(net, &name("attn.w_q"))?,
+                w_k: Linear::load(net, &name("attn.w_k"))?,
+                w_v: Linear::load(net, &name("attn.w_v"))?,
+                w_o: Linear::load(net, &name("attn.w_o"))?,
+                norm1: LayerNormW::load(net, &name("norm1"))?,
+                ff1: Linear::load(net, &name("ff1"))?,
+                ff2: Linear::load(net, &name("ff2"))?,
+                norm2: LayerNormW::load(net, &name("norm2"))?,
+                prior,
+            });
+        }
+        let (w_in, p_in) = layer_one_parts(&embed, &pos, &layers[0], l)?;
+        let d_ff = cfg.d_ff;
+        let zeros = |n: usize| vec![0f32; n];
+        let s = Scratch {
+            x0: zeros(l * 4 * d),
+            h: zeros(l * d),
+            q: zeros(l * d),
+            k: zeros(l * d),
+            k_prev: zeros(l * d),
+            v: zeros(l * d),
+            att: zeros(l * d),
+            z: zeros(l * d),
+            ctx: zeros(heads * d),
+            ff: zeros(l * d_ff),
+            attn: (0..n_layers).map(|_| zeros(heads * l * l)).collect(),
+            prior: (0..n_layers)
+                .map(|_| if cfg.prior == Prior::Gaussian { zeros(heads * l * l) } else { Vec::new() })
+                .collect(),
+            ln_prior: (0..n_layers)
+                .map(|_| if cfg.prior == Prior::Gaussian { zeros(heads * l * l) } else { Vec::new() })
+                .collect(),
+            sigma: zeros(l * heads),
+            r_hat: zeros(m),
+            class: zeros(cfg.d_class),
+            logit: zeros(1),
+            tcd: zeros(l),
+            terms: zeros(l),
+        };
+        Ok(Self {
+            l,
+            m,
+            d,
+            heads,
+            dcm: cfg.dcm,
+            class_input: cfg.class_input,
+            w_in,
+            p_in,
+            layers,
+            recon: Linear::load(net, "recon")?,
+            class1: Linear::load(net, "class1")?,
+            class2: Linear::load(net, "class2")?,
+            ring: zeros(l * 4 * d),
+            start: 0,
+            n_seen: 0,
+            s,
+        })
+    }
+
+    /// Forgets every residue seen.
+    pub fn reset(&mut self) {
+        self.start = 0;
+        self.n_seen = 0;
+    }
+
+    /// Residues seen since construction or [`StreamingNet::reset`].
+    pub fn n_seen(&self) -> usize {
+        self.n_seen
+    }
+
+    /// Slides the window to end at the normalised residue `x` (`m` values) and computes its
+    /// newest step's outputs, with the TCD of every step when `with_tcd`.
+    ///
+    /// # Errors
+    /// [`ModelError::Data`] for a residue of the wrong length or with a non-finite value.
+    pub fn push(&mut self, x: &[f32], with_tcd: bool) -> Result<StepOutput<'_>> {
+        if x.len() != self.m {
+            return Err(ModelError::Data { msg: format!("residue of {} values, network reads {}", x.len(), self.m) });
+        }
+        if let Some(j) = x.iter().position(|v| !v.is_finite()) {
+            return Err(ModelError::Data { msg: format!("non-finite residue value in channel {j}") });
+        }
+        self.push_residue(x)?;
+        vmath::vectorized(
+            #[inline(always)]
+            || self.forward(with_tcd),
+        )?;
+        let s = &self.s;
+        let recon_err = s.r_hat.iter().zip(x).map(|(r, v)| (r - v) * (r - v)).sum::<f32>() / self.m as f32;
+        Ok(StepOutput { recon_err, logit: s.logit[0], tcd: with_tcd.then_some(&s.tcd[..]) })
+    }
+
+    /// Stores the residue part of layer 1's input and projections in the ring (every slot for
+    /// the first residue: front padding).
+    fn push_residue(&mut self, x: &[f32]) -> Result<()> {
+        let w = 4 * self.d;
+        let slot = if self.n_seen == 0 { 0 } else { self.start };
+        let row = &mut self.ring[slot * w..(slot + 1) * w];
+        matmul(
+            MatMut::rows(row, 1, w)?,
+            MatRef::rows(x, 1, self.m)?,
+            MatRef::rows(&self.w_in, self.m, w)?,
+            1.0,
+            false,
+        )?;
+        if self.n_seen == 0 {
+            let (first, rest) = self.ring.split_at_mut(w);
+            for r in rest.chunks_exact_mut(w) {
+                r.copy_from_slice(first);
+            }
+            self.start = 0;
+        } else {
+            // The slot that held the oldest step now holds the newest: the next one is oldest.
+            self.start = (self.start + 1) % self.l;
+        }
+        self.n_seen += 1;
+        Ok(())
+    }
+
+    /// The forward pass of the current window. Inlined into [`vmath::vectorized`], like every
+    /// function it calls with element-wise loops.
+    #[inline(always)]
+    fn forward(&mut self, with_tcd: bool) -> Result<()> {
+        let (l, d, heads) = (self.l, self.d, self.heads);
+        let dh = d / heads;
+        let scale = 1.0 / (dh as f32).sqrt();
+        let w4 = 4 * d;
+        let s = &mut self.s;
+        // Layer 1's input and projections: ring (oldest first) plus the position part.
+        for i in 0..l {
+            let slot = (self.start + i) % l;
+            let (dst, ring, pos) = (
+                &mut s.x0[i * w4..(i + 1) * w4],
+                &self.ring[slot * w4..(slot + 1) * w4],
+                &self.p_in[i * w4..(i + 1) * w4],
+            );
+            for ((o, a), b) in dst.iter_mut().zip(ring).zip(pos) {
+                *o = a + b;
+            }
+        }
+        let n_layers = self.layers.len();
+        for (idx, layer) in self.layers.iter().enumerate() {
+            let last = idx + 1 == n_layers;
+            let out_rows = if last { 1 } else { l };
+            let q_rows = if with_tcd || !last { l } else { 1 };
+            let first_q = l - q_rows;
+            // Input `H`, queries, own keys and values as views (row stride), layer 1 from `x0`.
+            let (h_in, h_rs): (&[f32], usize) = if idx == 0 { (&s.x0, w4) } else { (&s.h, d) };
+            let own_keys_needed = !self.dcm || idx == 0;
+            let keys_for_next = self.dcm && !last;
+            if idx > 0 {
+                let h_q = MatRef::new(&h_in[first_q * h_rs..], q_rows, d, h_rs, 1)?;
+                layer.w_q.forward(h_q, &mut s.q, q_rows)?;
+                if own_keys_needed || keys_for_next {
+                    layer.w_k.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.k, l)?;
+                }
+                if out_rows == l {
+                    layer.w_v.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.v, l)?;
+                }
+            } else if keys_for_next {
+                for (dst, src) in s.k.chunks_exact_mut(d).zip(s.x0.chunks_exact(w4)) {
+                    dst.copy_from_slice(&src[2 * d..3 * d]);
+                }
+            }
+            let (q, q_rs, q_off) = if idx == 0 { (&s.x0[..], w4, first_q * w4 + d) } else { (&s.q[..], d, 0) };
+            let (keys, k_rs, k_off) = match (idx, self.dcm) {
+                (0, _) => (&s.x0[..], w4, 2 * d),
+                (_, true) => (&s.k_prev[..], d, 0),
+                (_, false) => (&s.k[..], d, 0),
+            };
+            // Attention `C = softmax(Q Kᵀ/√d)` per head (eq:first_layer_attention,
+            // eq:cross_layer_attention).
+            let attn = &mut s.attn[idx];
+            for hd in 0..heads {
+                let c = &mut attn[hd * q_rows * l..(hd + 1) * q_rows * l];
+                matmul(
+                    MatMut::rows(c, q_rows, l)?,
+                    MatRef::new(&q[q_off + hd * dh..], q_rows, dh, q_rs, 1)?,
+                    MatRef::new(&keys[k_off + hd * dh..], l, dh, k_rs, 1)?.t(),
+                    scale,
+                    false,
+                )?;
+                for row in c.chunks_exact_mut(l) {
+                    softmax_row(row);
+                }
+            }
+            // Attention output of the `out_rows` newest rows, heads side by side.
+            let c_out = |hd: usize| -> Result<MatRef<'_>> {
+                MatRef::rows(&attn[(hd * q_rows + q_rows - out_rows) * l..(hd + 1) * q_rows * l], out_rows, l)
+            };
+            if idx == 0 || out_rows == l {
+                let (v, v_rs, v_off) = if idx == 0 { (&s.x0[..], w4, 3 * d) } else { (&s.v[..], d, 0) };
+                for hd in 0..heads {
+                    matmul(
+                        MatMut::new(&mut s.att[hd * dh..], out_rows, dh, d, 1)?,
+                        c_out(hd)?,
+                        MatRef::new(&v[v_off + hd * dh..], l, dh, v_rs, 1)?,
+                        1.0,
+                        false,
+                    )?;
+                }
+            } else {
+                // One row: `c (H W_V + b_V) = (c H) W_V + b_V` per head.
+                let w_v = &layer.w_v;
+                for hd in 0..heads {
+                    let ctx = &mut s.ctx[hd * d..(hd + 1) * d];
+                    matmul(MatMut::rows(ctx, 1, d)?, c_out(hd)?, MatRef::new(h_in, l, d, h_rs, 1)?, 1.0, false)?;
+                    let out = &mut s.att[hd * dh..(hd + 1) * dh];
+                    matmul(
+                        MatMut::rows(out, 1, dh)?,
+                        MatRef::rows(ctx, 1, d)?,
+                        MatRef::new(&w_v.w[hd * dh..], d, dh, d, 1)?,
+                        1.0,
+                        false,
+                    )?;
+                    add_bias_row(out, &w_v.b[hd * dh..(hd + 1) * dh]);
+                }
+            }
+            // Gaussian prior from this layer's input (only for the TCD).
+            if with_tcd && let LayerPrior::Gaussian { sigma } = &layer.prior {
+                sigma.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.sigma, l)?;
+                gaussian_prior(&s.sigma, heads, l, &mut s.prior[idx], &mut s.ln_prior[idx]);
+            }
+            // `Z = Norm(C V W_O + b_O + H)` on the newest `out_rows` rows.
+            let rows = out_rows * d;
+            for (i, z_row) in s.z[..rows].chunks_exact_mut(d).enumerate() {
+                let src = (l - out_rows + i) * h_rs;
+                z_row.copy_from_slice(&h_in[src..src + d]);
+                add_bias_row(z_row, &layer.w_o.b);
+            }
+            matmul(
+                MatMut::rows(&mut s.z, out_rows, d)?,
+                MatRef::rows(&s.att, out_rows, d)?,
+                MatRef::rows(&layer.w_o.w, d, d)?,
+                1.0,
+                true,
+            )?;
+            layer.norm1.apply(&mut s.z[..rows]);
+            // `H' = Norm(FF(Z) + Z)`.
+            layer.ff1.forward(MatRef::rows(&s.z, out_rows, d)?, &mut s.ff, out_rows)?;
+            for v in &mut s.ff[..out_rows * layer.ff1.n_out] {
+                *v = gelu_value(*v);
+            }
+            for (h_row, z_row) in s.h[..rows].chunks_exact_mut(d).zip(s.z.chunks_exact(d)) {
+                h_row.copy_from_slice(z_row);
+                add_bias_row(h_row, &layer.ff2.b);
+            }
+            matmul(
+                MatMut::rows(&mut s.h, out_rows, d)?,
+                MatRef::rows(&s.ff, out_rows, layer.ff1.n_out)?,
+                MatRef::rows(&layer.ff2.w, layer.ff2.n_in, d)?,
+                1.0,
+                true,
+            )?;
+            layer.norm2.apply(&mut s.h[..rows]);
+            if keys_for_next {
+                std::mem::swap(&mut s.k, &mut s.k_prev);
+            }
+        }
+        // Heads on the newest row.
+        self.recon.forward(MatRef::rows(&s.h, 1, d)?, &mut s.r_hat, 1)?;
+        let class_in = match self.class_input {
+            ClassInput::Reconstruction => MatRef::rows(&s.r_hat, 1, self.m)?,
+            ClassInput::Hidden => MatRef::rows(&s.h, 1, d)?,
+        };
+        self.class1.forward(class_in, &mut s.class, 1)?;
+        for v in &mut s.class {
+            *v = gelu_value(*v);
+        }
+        self.class2.forward(MatRef::rows(&s.class, 1, s.class.len())?, &mut s.logit, 1)?;
+        if with_tcd {
+            self.tcd();
+        }
+        Ok(())
+    }
+
+    /// TCD of every step: mean over layers and heads of `JS(Tᵢ ‖ Cᵢ)`.
+    #[inline(always)]
+    fn tcd(&mut self) {
+        let (l, heads) = (self.l, self.heads);
+        let s = &mut self.s;
+        s.tcd.fill(0.0);
+        for (idx, layer) in self.layers.iter().enumerate() {
+            let (t, ln_t) = match &layer.prior {
+                LayerPrior::Tpc { t, ln_t } => (&t[..], &ln_t[..]),
+                LayerPrior::Gaussian { .. } => (&s.prior[idx][..], &s.ln_prior[idx][..]),
+            };
+            for i in 0..l {
+                let mut js = 0.0;
+                for hd in 0..heads {
+                    let r = (hd * l + i) * l..(hd * l + i + 1) * l;
+                    js += js_row(&t[r.clone()], &ln_t[r.clone()], &s.attn[idx][r], &mut s.terms);
+                }
+                s.tcd[i] += js / heads as f32;
+            }
+        }
+        let n = self.layers.len() as f32;
+        for v in &mut s.tcd {
+            *v /= n;
+        }
+    }
+}
+
+/// Layer 1's residue and position parts (module docs, point 1): `[W_e | W_e W_Q | W_e W_K |
+/// W_e W_V]` (`m × 4d`) and `(b_e + PEᵢ)[I | W_Q | W_K | W_V] + [0 | b_Q | b_K | b_V]`
+/// (`l × 4d`), accumulated in `f64`.
+fn layer_one_parts(embed: &Linear, pos: &[f32], layer: &LayerW, l: usize) -> Result<(Vec<f32>, Vec<f32>)> {
+    let (m, d) = (embed.n_in, embed.n_out);
+    if pos.len() != l * d {
+        return Err(ModelError::Data {
+            msg: format!("positional encoding of {} values, expected {l} × {d}", pos.len()),
+        });
+    }
+    let projections = [&layer.w_q, &layer.w_k, &layer.w_v];
+    // Row `u` (`d` values) through the identity and the three projections, plus the biases.
+    let through = |u: &[f64], with_bias: bool, out: &mut [f32]| {
+        for (j, o) in out[..d].iter_mut().enumerate() {
+            *o = u[j] as f32;
+        }
+        for (p, proj) in projections.iter().enumerate() {
+            for c in 0..d {
+                let mut acc = if with_bias { f64::from(proj.b[c]) } else { 0.0 };
+                for (j, uj) in u.iter().enumerate() {
+                    acc += uj * f64::from(proj.w[j * d + c]);
+                }
+                out[(p + 1) * d + c] = acc as f32;
+            }
+        }
+    };
+    let mut w_in = vec![0f32; m * 4 * d];
+    for (r, out) in w_in.chunks_exact_mut(4 * d).enumerate() {
+        let u: Vec<f64> = embed.w[r * d..(r + 1) * d].iter().map(|&v| f64::from(v)).collect();
+        through(&u, false, out);
+    }
+    let mut p_in = vec![0f32; l * 4 * d];
+    for (i, out) in p_in.chunks_exact_mut(4 * d).enumerate() {
+        let u: Vec<f64> = (0..d).map(|j| f64::from(embed.b[j]) + f64::from(pos[i * d + j])).collect();
+        through(&u, true, out);
+    }
+    Ok((w_in, p_in))
+}
+
+/// Anomaly Transformer's Gaussian prior from the width projections `s` (`l × heads`):
+/// `σ = 3^(sigmoid(5s) + 10⁻⁵) − 1`, `Tᵢⱼ ∝ exp(−|j − i|²/(2σᵢ²))` (exponent clamped at
+/// [`PRIOR_EXP_FLOOR`]), as [`QuadFormerNet`] builds it; `t` and `ln_t` are `heads × l × l`.
+#[inline(always)]
+fn gaussian_prior(s: &[f32], heads: usize, l: usize, t: &mut [f32], ln_t: &mut [f32]) {
+    let floor = PRIOR_EXP_FLOOR as f32;
+    for hd in 0..heads {
+        for i in 0..l {
+            let u = 1.0 / (1.0 + vmath::exp(-5.0 * s[i * heads + hd])) + 1e-5;
+            let sigma = vmath::exp(u * 3f32.ln()) - 1.0;
+            let two_var = 2.0 * sigma * sigma;
+            let r = (hd * l + i) * l..(hd * l + i + 1) * l;
+            let row = &mut t[r.clone()];
+            for (j, v) in row.iter_mut().enumerate() {
+                let dist = j as f32 - i as f32;
+                *v = vmath::exp((-(dist * dist) / two_var).clamp(floor, 0.0));
+            }
+            let sum = vmath::sum(row);
+            for (v, lv) in row.iter_mut().zip(&mut ln_t[r]) {
+                *v /= sum;
+                *lv = vmath::ln(*v + JS_EPS);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
