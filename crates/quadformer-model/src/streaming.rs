@@ -4,7 +4,7 @@
 //!
 //! It computes what [`QuadFormerNet::forward_steps`] with [`Steps::Last`] computes, from the
 //! same weights, in plain `f32` buffers ([`crate::matmul`], the element-wise kernels of
-//! [`crate::fused`] and [`crate::js`]), and does less work in three exact ways:
+//! [`crate::fused`] and [`crate::js`]), and does less work in four exact ways:
 //!
 //! 1. **Layer 1 is linear in each residue.** Its input is `h⁰ᵢ = xᵢ W_e + b_e + PEᵢ` and its
 //!    projections `Q¹ᵢ = h⁰ᵢ W_Q + b_Q` (likewise `K¹`, `V¹`), so each splits into a part of
@@ -16,7 +16,11 @@
 //!    row, one feed-forward row. Its value product is reassociated,
 //!    `c (H W_V + 1 b_V) = (c H) W_V + b_V` (the attention row `c` sums to 1), so the window's
 //!    values are never formed.
-//! 3. **Nothing is allocated** after construction: every intermediate has its buffer.
+//! 3. **With one head, `W_O` is folded into the values**: `C (H W_V + 1 b_V) W_O + b_O =
+//!    C (H W_V W_O + 1 (b_V W_O + b_O))`, so the attention output is already in the model
+//!    space and the `l × d × d` output product disappears (layer 1's ring holds `V W_O`). With
+//!    several heads the folded values would cost a product per head, so they stay apart.
+//! 4. **Nothing is allocated** after construction: every intermediate has its buffer.
 //!
 //! The results equal the candle forward pass up to `f32` rounding (reassociated sums; the tests
 //! bound the difference). The TPC priors and their `ln(T + ε)` are frozen at construction; the
@@ -56,6 +60,22 @@ impl Linear {
             return Err(ModelError::Data { msg: format!("{name}.bias has {} values, expected {n_out}", b.len()) });
         }
         Ok(Self { w, b, n_in, n_out })
+    }
+
+    /// The composition `x ↦ (x W + b) W' + b'` of this layer and `next`, as one layer
+    /// (accumulated in `f64`).
+    fn then(&self, next: &Linear) -> Self {
+        let (n_in, n_mid, n_out) = (self.n_in, self.n_out, next.n_out);
+        let through = |row: &[f32], bias: f32| -> Vec<f32> {
+            (0..n_out)
+                .map(|j| {
+                    let acc: f64 = (0..n_mid).map(|k| f64::from(row[k]) * f64::from(next.w[k * n_out + j])).sum();
+                    (acc + f64::from(bias) * f64::from(next.b[j])) as f32
+                })
+                .collect()
+        };
+        let w = self.w.chunks_exact(n_mid).flat_map(|row| through(row, 0.0)).collect();
+        Self { w, b: through(&self.b, 1.0), n_in, n_out }
     }
 
     /// `dst ← x W + b` for the `rows` rows of `x`.
@@ -114,8 +134,10 @@ enum LayerPrior {
 struct LayerW {
     w_q: Linear,
     w_k: Linear,
+    /// The value projection; with one head, `W_V W_O` and `b_V W_O + b_O` (module docs).
     w_v: Linear,
-    w_o: Linear,
+    /// The output projection; `None` with one head, where it is folded into `w_v`.
+    w_o: Option<Linear>,
     norm1: LayerNormW,
     ff1: Linear,
     ff2: Linear,
@@ -220,11 +242,13 @@ impl StreamingNet {
                 }
                 Prior::Gaussian => LayerPrior::Gaussian { sigma: Linear::load(net, &name("attn.sigma"))? },
             };
+            let (w_v, w_o) = (Linear::load(net, &name("attn.w_v"))?, Linear::load(net, &name("attn.w_o"))?);
+            let (w_v, w_o) = if heads == 1 { (w_v.then(&w_o), None) } else { (w_v, Some(w_o)) };
             layers.push(LayerW {
                 w_q: Linear::load(net, &name("attn.w_q"))?,
                 w_k: Linear::load(net, &name("attn.w_k"))?,
-                w_v: Linear::load(net, &name("attn.w_v"))?,
-                w_o: Linear::load(net, &name("attn.w_o"))?,
+                w_v,
+                w_o,
                 norm1: LayerNormW::load(net, &name("norm1"))?,
                 ff1: Linear::load(net, &name("ff1"))?,
                 ff2: Linear::load(net, &name("ff2"))?,
@@ -449,15 +473,21 @@ impl StreamingNet {
             for (i, z_row) in s.z[..rows].chunks_exact_mut(d).enumerate() {
                 let src = (l - out_rows + i) * h_rs;
                 z_row.copy_from_slice(&h_in[src..src + d]);
-                add_bias_row(z_row, &layer.w_o.b);
+                match &layer.w_o {
+                    Some(w_o) => add_bias_row(z_row, &w_o.b),
+                    // One head: the attention output is already `C V W_O + b_O`.
+                    None => add_bias_row(z_row, &s.att[i * d..(i + 1) * d]),
+                }
             }
-            matmul(
-                MatMut::rows(&mut s.z, out_rows, d)?,
-                MatRef::rows(&s.att, out_rows, d)?,
-                MatRef::rows(&layer.w_o.w, d, d)?,
-                1.0,
-                true,
-            )?;
+            if let Some(w_o) = &layer.w_o {
+                matmul(
+                    MatMut::rows(&mut s.z, out_rows, d)?,
+                    MatRef::rows(&s.att, out_rows, d)?,
+                    MatRef::rows(&w_o.w, d, d)?,
+                    1.0,
+                    true,
+                )?;
+            }
             layer.norm1.apply(&mut s.z[..rows]);
             // `H' = Norm(FF(Z) + Z)`.
             layer.ff1.forward(MatRef::rows(&s.z, out_rows, d)?, &mut s.ff, out_rows)?;
