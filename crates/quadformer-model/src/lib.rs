@@ -17,6 +17,9 @@
 //!   alg:alg2's `softmax(−TCD)`, the Anomaly Transformer criterion, the classifier probability,
 //!   a combination) whose thresholds are chosen on the validation split, and a streaming
 //!   [`OnlineQuadFormer`];
+//! - [`streaming`]: [`streaming::StreamingNet`], the frozen network outside candle that the
+//!   streaming detector runs (layer 1 reused across windows, the last layer on the newest step,
+//!   products through the bounds-checked [`matmul`] into buffers allocated once);
 //! - [`checkpoint`]: safetensors weights + versioned JSON manifest with integrity checks.
 //!
 //! Usage and training guide: `docs/quadformer.md`.
