@@ -168,8 +168,9 @@ struct Scratch {
     k: Vec<f32>,
     k_prev: Vec<f32>,
     v: Vec<f32>,
-    /// Attention output (before `W_O`), then `Z` after `W_O`, the residual and the norm.
+    /// Attention output (before `W_O`, or after it when folded).
     att: Vec<f32>,
+    /// `Z`: the attention output after `W_O`, the residual and the norm.
     z: Vec<f32>,
     /// `c H` of every head (last layer).
     ctx: Vec<f32>,
@@ -197,7 +198,8 @@ pub struct StreamingNet {
     heads: usize,
     dcm: bool,
     class_input: ClassInput,
-    /// `[W_e | W_e W_Q¹ | W_e W_K¹ | W_e W_V¹]`, `m × 4d`.
+    /// `[W_e | W_e W_Q¹ | W_e W_K¹ | W_e W_V¹]`, `m × 4d` (`W_V¹` as held by its layer, with
+    /// `W_O¹` folded in for one head).
     w_in: Vec<f32>,
     /// `(b_e + PEᵢ)[I | W_Q¹ | W_K¹ | W_V¹] + [0 | b_Q¹ | b_K¹ | b_V¹]`, `l × 4d`.
     p_in: Vec<f32>,
@@ -256,7 +258,8 @@ impl StreamingNet {
                 prior,
             });
         }
-        let (w_in, p_in) = layer_one_parts(&embed, &pos, &layers[0], l)?;
+        let first = layers.first().ok_or_else(|| ModelError::Data { msg: "the network has no layers".into() })?;
+        let (w_in, p_in) = layer_one_parts(&embed, &pos, first, l)?;
         let d_ff = cfg.d_ff;
         let zeros = |n: usize| vec![0f32; n];
         let s = Scratch {
