@@ -80,13 +80,14 @@ fn geometry(p: &Shape, q: &Shape) -> candle_core::Result<Geometry> {
 }
 
 /// `JS(p, q)` of one row from `p`, its `ln(p + ε)` and `q`, with `terms` (the row's length)
-/// as scratch. Inlined into a loop that runs in [`vmath::vectorized`]; the streaming engine
-/// ([`crate::streaming`]) calls it too.
+/// as scratch and `ln` as the logarithm: [`vmath::ln`] here, [`vmath::ln_fast`] in the
+/// streaming engine ([`crate::streaming`]). Inlined into a loop that runs in
+/// [`vmath::vectorized`].
 #[inline(always)]
-pub(crate) fn js_row(p: &[f32], ln_p: &[f32], q: &[f32], terms: &mut [f32]) -> f32 {
+pub(crate) fn js_row(p: &[f32], ln_p: &[f32], q: &[f32], terms: &mut [f32], ln: impl Fn(f32) -> f32) -> f32 {
     for (((t, &pj), &lpj), &qj) in terms.iter_mut().zip(p).zip(ln_p).zip(q) {
-        let lm = vmath::ln(0.5 * (pj + qj) + JS_EPS);
-        *t = pj * (lpj - lm) + qj * (vmath::ln(qj + JS_EPS) - lm);
+        let lm = ln(0.5 * (pj + qj) + JS_EPS);
+        *t = pj * (lpj - lm) + qj * (ln(qj + JS_EPS) - lm);
     }
     0.5 * vmath::sum(terms)
 }
@@ -170,7 +171,7 @@ impl CustomOp2 for JsDivergence {
                 let mut out = Vec::with_capacity(g.rows);
                 for (r, q_row) in q.chunks_exact(g.len).enumerate() {
                     let off = (r % g.p_rows) * g.len;
-                    out.push(js_row(&p[off..off + g.len], &ln_p[off..off + g.len], q_row, &mut terms));
+                    out.push(js_row(&p[off..off + g.len], &ln_p[off..off + g.len], q_row, &mut terms, vmath::ln));
                 }
                 out
             },
