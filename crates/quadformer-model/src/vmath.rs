@@ -37,14 +37,15 @@ pub fn vectorized<R>(f: impl FnOnce() -> R) -> R {
     pulp::Arch::new().dispatch(f)
 }
 
+/// `ln 2` split in a part exact in a few bits and the rest (Cody–Waite reduction).
+const LN2_HI: f32 = 0.693_359_4;
+const LN2_LO: f32 = -2.121_944_4e-4;
+
 /// `e^x` (Cephes `expf`; 0 below `−87.34`, `+∞` above `88.38` (the exact result overflows at
 /// 88.72), NaN stays NaN).
 #[inline(always)]
 pub fn exp(x: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
-    // ln 2 split in a part exact in a few bits and the rest (Cody–Waite reduction).
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
     // 1.5·2²³: adding it rounds to an integer, which its low mantissa bits then hold.
     const ROUND: f32 = 12_582_912.0;
     const LO: f32 = -87.336_55; // ln of the smallest normal f32
@@ -70,22 +71,41 @@ pub fn exp(x: f32) -> f32 {
     }
 }
 
-/// `ln x` (Cephes `logf`; `−∞` at 0, NaN below 0, denormals handled).
+/// `(e, m)` with `x = 2ᵉ m`, `m ∈ [√½, √2)`, for the logarithms (denormals are scaled by
+/// `2²³` into the normal range first; meaningless for `x ≤ 0`, ∞ and NaN, which
+/// [`ln_special`] handles).
 #[inline(always)]
-pub fn ln(x: f32) -> f32 {
-    const SQRT_HALF: f32 = std::f32::consts::FRAC_1_SQRT_2;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
-    // Denormals are scaled by 2²³ into the normal range first.
+fn ln_reduce(x: f32) -> (f32, f32) {
     let tiny = x < f32::MIN_POSITIVE;
     let xs = if tiny { x * 8_388_608.0 } else { x };
     let bits = xs.to_bits();
     let e0 = ((bits >> 23) & 0xff) as i32 - 126 - if tiny { 23 } else { 0 };
-    // Mantissa in [0.5, 1).
+    // Mantissa in [0.5, 1), doubled below √½ (exact).
     let m0 = f32::from_bits((bits & 0x807f_ffff) | 0x3f00_0000);
-    let below = m0 < SQRT_HALF;
-    let e = (e0 - i32::from(below)) as f32;
-    let m = if below { m0 + m0 - 1.0 } else { m0 - 1.0 };
+    let below = m0 < std::f32::consts::FRAC_1_SQRT_2;
+    ((e0 - i32::from(below)) as f32, if below { m0 + m0 } else { m0 })
+}
+
+/// `ln x` from its value `r` for positive finite `x`: `x` itself for NaN and `+∞`, `−∞` at 0,
+/// NaN below 0.
+#[inline(always)]
+fn ln_special(x: f32, r: f32) -> f32 {
+    if x.is_nan() || x == f32::INFINITY {
+        x
+    } else if x == 0.0 {
+        f32::NEG_INFINITY
+    } else if x < 0.0 {
+        f32::NAN
+    } else {
+        r
+    }
+}
+
+/// `ln x` (Cephes `logf`; `−∞` at 0, NaN below 0, denormals handled).
+#[inline(always)]
+pub fn ln(x: f32) -> f32 {
+    let (e, m) = ln_reduce(x);
+    let m = m - 1.0;
     let z = m * m;
     let p = (((((((7.037_683_6e-2 * m - 1.151_461e-1) * m + 1.167_699_9e-1) * m - 1.242_014_1e-1) * m
         + 1.424_932_3e-1)
@@ -98,16 +118,7 @@ pub fn ln(x: f32) -> f32 {
         * m
         + 3.333_333e-1;
     let y = p * m * z + e * LN2_LO - 0.5 * z;
-    let r = m + y + e * LN2_HI;
-    if x.is_nan() || x == f32::INFINITY {
-        x
-    } else if x == 0.0 {
-        f32::NEG_INFINITY
-    } else if x < 0.0 {
-        f32::NAN
-    } else {
-        r
-    }
+    ln_special(x, m + y + e * LN2_HI)
 }
 
 /// `ln x` through `atanh` (module docs): `x = 2ᵉ m` with `m ∈ [√½, √2)`,
@@ -116,31 +127,11 @@ pub fn ln(x: f32) -> f32 {
 /// below 0, denormals handled.
 #[inline(always)]
 pub fn ln_fast(x: f32) -> f32 {
-    const SQRT_2: f32 = std::f32::consts::SQRT_2;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
-    let tiny = x < f32::MIN_POSITIVE;
-    let xs = if tiny { x * 8_388_608.0 } else { x };
-    let bits = xs.to_bits();
-    let e0 = ((bits >> 23) & 0xff) as i32 - 127 - if tiny { 23 } else { 0 };
-    // Mantissa in [1, 2), then in [√½, √2).
-    let m0 = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000);
-    let above = m0 > SQRT_2;
-    let m = if above { 0.5 * m0 } else { m0 };
-    let e = (e0 + i32::from(above)) as f32;
+    let (e, m) = ln_reduce(x);
     let s = (m - 1.0) / (m + 1.0);
     let z = s * s;
     let p = ((0.222_222_22 * z + 0.285_714_3) * z + 0.4) * z + 0.666_666_7;
-    let r = e * LN2_HI + ((s + s) + (s * z * p + e * LN2_LO));
-    if x.is_nan() || x == f32::INFINITY {
-        x
-    } else if x == 0.0 {
-        f32::NEG_INFINITY
-    } else if x < 0.0 {
-        f32::NAN
-    } else {
-        r
-    }
+    ln_special(x, e * LN2_HI + ((s + s) + (s * z * p + e * LN2_LO)))
 }
 
 /// `erf x` (Abramowitz & Stegun 7.1.26, module docs).
