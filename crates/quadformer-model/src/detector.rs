@@ -22,7 +22,7 @@ use ekf_residue::{
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
-use crate::model::{GradFlow, LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet, Steps};
+use crate::model::{GradFlow, LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet};
 use crate::streaming::StreamingNet;
 use crate::train::{TrainConfig, TrainReport, train};
 use crate::window::{Normaliser, WindowConfig, Windows};
@@ -188,56 +188,16 @@ fn combine(p: f64, a: f64, crit_scale: f64) -> f64 {
     0.5 * p + 0.5 * a / (a + crit_scale)
 }
 
-/// Which raw scores to compute (streaming computes only what its mode needs).
-#[derive(Debug, Clone, Copy)]
-struct Need {
-    alg2: bool,
-    at: bool,
-    class: bool,
-}
-
-impl Need {
-    const ALL: Need = Need { alg2: true, at: true, class: true };
-
-    fn for_mode(mode: ScoreMode) -> Self {
-        match mode {
-            ScoreMode::Alg2 => Need { alg2: true, at: false, class: false },
-            ScoreMode::AnomalyTransformer => Need { alg2: false, at: true, class: false },
-            ScoreMode::Classifier => Need { alg2: false, at: false, class: true },
-            ScoreMode::Combined => Need { alg2: false, at: true, class: true },
-        }
-    }
-}
-
-/// Per-window per-step raw scores `(alg2, at, class)`, each `b·r` row-major for the `r` steps
-/// of `steps` (`l`, or the last one), empty when not needed.
-fn window_scores(
-    net: &QuadFormerNet,
-    x: &Tensor,
-    temperature: f64,
-    need: Need,
-    steps: Steps,
-) -> candle_core::Result<[Vec<f32>; 3]> {
-    let out = net.forward_steps(x, steps)?;
-    let (l, rows) = (x.dim(1)?, out.logits.dim(1)?);
-    let mut res: [Vec<f32>; 3] = Default::default();
-    if need.alg2 || need.at {
-        // Both normalise over every step of the window, then keep the steps asked for.
-        let neg_tcd = QuadFormerNet::tcd(&out, GradFlow::Stop, GradFlow::Stop)?.neg()?;
-        if need.alg2 {
-            let alg2 = candle_nn::ops::softmax(&neg_tcd, D::Minus1)?.narrow(1, l - rows, rows)?;
-            res[0] = alg2.flatten_all()?.to_vec1()?;
-        }
-        if need.at {
-            let err = (&out.r_hat - x.narrow(1, l - rows, rows)?)?.sqr()?.mean(D::Minus1)?;
-            let weight = candle_nn::ops::softmax(&(neg_tcd * temperature)?, D::Minus1)?.narrow(1, l - rows, rows)?;
-            res[1] = (weight * err)?.flatten_all()?.to_vec1()?;
-        }
-    }
-    if need.class {
-        res[2] = candle_nn::ops::sigmoid(&out.logits)?.flatten_all()?.to_vec1()?;
-    }
-    Ok(res)
+/// Per-window per-step raw scores `(alg2, at, class)`, each `b·l` row-major.
+fn window_scores(net: &QuadFormerNet, x: &Tensor, temperature: f64) -> candle_core::Result<[Vec<f32>; 3]> {
+    let out = net.forward(x)?;
+    // Both TCD scores normalise over every step of the window.
+    let neg_tcd = QuadFormerNet::tcd(&out, GradFlow::Stop, GradFlow::Stop)?.neg()?;
+    let alg2 = candle_nn::ops::softmax(&neg_tcd, D::Minus1)?;
+    let err = (&out.r_hat - x)?.sqr()?.mean(D::Minus1)?;
+    let at = (candle_nn::ops::softmax(&(neg_tcd * temperature)?, D::Minus1)? * err)?;
+    let class = candle_nn::ops::sigmoid(&out.logits)?;
+    Ok([alg2.flatten_all()?.to_vec1()?, at.flatten_all()?.to_vec1()?, class.flatten_all()?.to_vec1()?])
 }
 
 /// Stitched raw scores of a whole series.
@@ -253,7 +213,7 @@ fn raw_scores(
     let idx: Vec<usize> = (0..windows.len()).collect();
     for chunk in idx.chunks(score.batch_size) {
         let batch = windows.batch(chunk, &Device::Cpu)?;
-        let parts = window_scores(net, &batch.x, score.temperature, Need::ALL, Steps::All)?;
+        let parts = window_scores(net, &batch.x, score.temperature)?;
         for (a, p) in acc.iter_mut().zip(parts) {
             a.extend(p);
         }
@@ -482,8 +442,8 @@ impl<'a> OnlineQuadFormer<'a> {
     /// The chosen mode's score of the newest step, with the window slid to end at `x`.
     fn score_newest(&mut self) -> Result<f64> {
         let mode = self.det.chosen.mode;
-        let need = Need::for_mode(mode);
-        let out = self.net.push(&self.x, need.alg2 || need.at)?;
+        let reads_tcd = matches!(mode, ScoreMode::Alg2 | ScoreMode::AnomalyTransformer | ScoreMode::Combined);
+        let out = self.net.push(&self.x, reads_tcd)?;
         let tcd = out.tcd.unwrap_or_default();
         let at = || last_of_softmax(tcd, -self.det.config.score.temperature) * f64::from(out.recon_err);
         let class = || 1.0 / (1.0 + (-f64::from(out.logit)).exp());

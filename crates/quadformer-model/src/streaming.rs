@@ -65,20 +65,21 @@ impl Linear {
         Ok(Self { w, b, n_in, n_out })
     }
 
+    /// `u W + bias·b` of one row `u`, accumulated in `f64` (for weights formed once).
+    fn apply_f64(&self, u: &[f64], bias: f64) -> Vec<f32> {
+        (0..self.n_out)
+            .map(|j| {
+                let acc: f64 = u.iter().enumerate().map(|(k, uk)| uk * f64::from(self.w[k * self.n_out + j])).sum();
+                (acc + bias * f64::from(self.b[j])) as f32
+            })
+            .collect()
+    }
+
     /// The composition `x ↦ (x W + b) W' + b'` of this layer and `next`, as one layer
     /// (accumulated in `f64`).
     fn then(&self, next: &Linear) -> Self {
-        let (n_in, n_mid, n_out) = (self.n_in, self.n_out, next.n_out);
-        let through = |row: &[f32], bias: f32| -> Vec<f32> {
-            (0..n_out)
-                .map(|j| {
-                    let acc: f64 = (0..n_mid).map(|k| f64::from(row[k]) * f64::from(next.w[k * n_out + j])).sum();
-                    (acc + f64::from(bias) * f64::from(next.b[j])) as f32
-                })
-                .collect()
-        };
-        let w = self.w.chunks_exact(n_mid).flat_map(|row| through(row, 0.0)).collect();
-        Self { w, b: through(&self.b, 1.0), n_in, n_out }
+        let w = self.w.chunks_exact(self.n_out).flat_map(|row| next.apply_f64(&to_f64(row), 0.0)).collect();
+        Self { w, b: next.apply_f64(&to_f64(&self.b), 1.0), n_in: self.n_in, n_out: next.n_out }
     }
 
     /// `dst ← x W + b` for the `rows` rows of `x`.
@@ -113,6 +114,10 @@ impl LayerNormW {
             layer_norm_row(row, &self.gain, &self.bias, LN_EPS);
         }
     }
+}
+
+fn to_f64(xs: &[f32]) -> Vec<f64> {
+    xs.iter().map(|&v| f64::from(v)).collect()
 }
 
 /// The value of the variable `name`.
@@ -565,38 +570,28 @@ impl StreamingNet {
 /// W_e W_V]` (`m × 4d`) and `(b_e + PEᵢ)[I | W_Q | W_K | W_V] + [0 | b_Q | b_K | b_V]`
 /// (`l × 4d`), accumulated in `f64`.
 fn layer_one_parts(embed: &Linear, pos: &[f32], layer: &LayerW, l: usize) -> Result<(Vec<f32>, Vec<f32>)> {
-    let (m, d) = (embed.n_in, embed.n_out);
+    let d = embed.n_out;
     if pos.len() != l * d {
         return Err(ModelError::Data {
             msg: format!("positional encoding of {} values, expected {l} × {d}", pos.len()),
         });
     }
-    let projections = [&layer.w_q, &layer.w_k, &layer.w_v];
-    // Row `u` (`d` values) through the identity and the three projections, plus the biases.
-    let through = |u: &[f64], with_bias: bool, out: &mut [f32]| {
-        for (j, o) in out[..d].iter_mut().enumerate() {
-            *o = u[j] as f32;
+    // Row `u` (`d` values) through the identity and the three projections (`bias` times their
+    // biases).
+    let through = |u: &[f64], bias: f64| -> Vec<f32> {
+        let mut out: Vec<f32> = u.iter().map(|&v| v as f32).collect();
+        for proj in [&layer.w_q, &layer.w_k, &layer.w_v] {
+            out.extend(proj.apply_f64(u, bias));
         }
-        for (p, proj) in projections.iter().enumerate() {
-            for c in 0..d {
-                let mut acc = if with_bias { f64::from(proj.b[c]) } else { 0.0 };
-                for (j, uj) in u.iter().enumerate() {
-                    acc += uj * f64::from(proj.w[j * d + c]);
-                }
-                out[(p + 1) * d + c] = acc as f32;
-            }
-        }
+        out
     };
-    let mut w_in = vec![0f32; m * 4 * d];
-    for (r, out) in w_in.chunks_exact_mut(4 * d).enumerate() {
-        let u: Vec<f64> = embed.w[r * d..(r + 1) * d].iter().map(|&v| f64::from(v)).collect();
-        through(&u, false, out);
-    }
-    let mut p_in = vec![0f32; l * 4 * d];
-    for (i, out) in p_in.chunks_exact_mut(4 * d).enumerate() {
-        let u: Vec<f64> = (0..d).map(|j| f64::from(embed.b[j]) + f64::from(pos[i * d + j])).collect();
-        through(&u, true, out);
-    }
+    let w_in = embed.w.chunks_exact(d).flat_map(|row| through(&to_f64(row), 0.0)).collect();
+    let p_in = pos
+        .chunks_exact(d)
+        .flat_map(|pe| {
+            through(&pe.iter().zip(&embed.b).map(|(&p, &b)| f64::from(b) + f64::from(p)).collect::<Vec<_>>(), 1.0)
+        })
+        .collect();
     Ok((w_in, p_in))
 }
 
