@@ -1,6 +1,7 @@
 //! Criterion benchmarks of QUADFormer at the default size (`l` = 100, `d_model` 64, 3 layers,
 //! one head, `m` = 6 residue channels): streaming decision latency (one new residue) and
-//! training throughput (one min-max AdamW step on a batch of 32 windows).
+//! training throughput (one min-max AdamW step on a batch of 32 windows); and the two logarithms
+//! of `vmath` the Jensen–Shannon terms use.
 //!
 //! Run with `cargo bench -p quadformer-model`; figures go to docs/performance.md.
 
@@ -12,6 +13,7 @@ use candle_nn::{AdamW, Optimizer, ParamsAdamW};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ekf_residue::{Fit, LabelledResidues, LabelledSeries, ResidueSeries};
 use quadformer_model::model::MinMaxTrainer;
+use quadformer_model::vmath;
 use quadformer_model::{
     Batch, LossConfig, NetConfig, QuadFormerConfig, QuadFormerNet, ScoreMode, TrainableModel, tune_allocator,
 };
@@ -97,5 +99,37 @@ fn training(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, streaming, training);
+/// The two logarithms of `vmath` over 30,000 values (the Jensen–Shannon terms of a streaming
+/// decision in the combined mode take 60,000).
+fn logarithms(c: &mut Criterion) {
+    let x: Vec<f32> = (0..30_000).map(|i| (i as f32 + 1.0) / 30_000.0 + 1e-8).collect();
+    let mut group = c.benchmark_group("vmath");
+    group.throughput(Throughput::Elements(x.len() as u64));
+    // Generic so that each logarithm is inlined into its vectorised loop.
+    fn run(
+        group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+        name: &str,
+        x: &[f32],
+        f: impl Fn(f32) -> f32 + Copy,
+    ) {
+        let mut y = vec![0f32; x.len()];
+        group.bench_function(format!("{name}, 30k values"), |b| {
+            b.iter(|| {
+                vmath::vectorized(
+                    #[inline(always)]
+                    || {
+                        for (o, &v) in y.iter_mut().zip(x) {
+                            *o = f(v);
+                        }
+                    },
+                )
+            })
+        });
+    }
+    run(&mut group, "ln (Cephes)", &x, vmath::ln);
+    run(&mut group, "ln_fast (atanh)", &x, vmath::ln_fast);
+    group.finish();
+}
+
+criterion_group!(benches, streaming, training, logarithms);
 criterion_main!(benches);

@@ -25,7 +25,7 @@
 //! The results equal the candle forward pass up to `f32` rounding: sums are reassociated, and
 //! the Jensen–Shannon terms of the TCD take their two logarithms per entry, `ln(Cᵢⱼ + ε)` and
 //! `ln(Mᵢⱼ + ε)`, from [`vmath::ln_fast`] (within 1.4 units in the last place, against 0.7 for
-//! [`vmath::ln`], at two thirds of its cost; they are 60,000 of a default decision's work). The
+//! [`vmath::ln`], at four fifths of its cost; they are 60,000 of a default decision's work). The
 //! tests bound the difference. The TPC priors and their `ln(T + ε)` are frozen at construction; the
 //! Gaussian prior of the "TPC off" ablation depends on the input and is rebuilt per window.
 //!
