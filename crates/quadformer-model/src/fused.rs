@@ -103,6 +103,23 @@ pub(crate) fn softmax_row(row: &mut [f32]) {
     }
 }
 
+/// Softmax `c` of one row of scores `s`, in place, returning `Σⱼ cⱼ ln cⱼ` from the scores,
+/// `Σⱼ cⱼ (sⱼ − max s) − ln Σⱼ exp(sⱼ − max s)`, without a logarithm per entry. `shifted` (the
+/// row's length) is scratch.
+#[inline(always)]
+pub(crate) fn softmax_row_entropy(row: &mut [f32], shifted: &mut [f32]) -> f32 {
+    let max = vmath::max(row);
+    for (y, t) in row.iter_mut().zip(shifted.iter_mut()) {
+        *t = *y - max;
+        *y = vmath::exp(*t);
+    }
+    let sum = vmath::sum(row);
+    for y in row.iter_mut() {
+        *y /= sum;
+    }
+    vmath::dot(row, shifted) - vmath::ln(sum)
+}
+
 /// Replaces a row by `x − μ` and returns `1/σ`, `σ = √(var + eps)`.
 #[inline(always)]
 fn centre_row(row: &mut [f32], eps: f32) -> f32 {

@@ -80,16 +80,27 @@ fn geometry(p: &Shape, q: &Shape) -> candle_core::Result<Geometry> {
 }
 
 /// `JS(p, q)` of one row from `p`, its `ln(p + ε)` and `q`, with `terms` (the row's length)
-/// as scratch and `ln` as the logarithm: [`vmath::ln`] here, [`vmath::ln_fast`] in the
-/// streaming engine ([`crate::streaming`]). Inlined into a loop that runs in
-/// [`vmath::vectorized`].
+/// as scratch. Inlined into a loop that runs in [`vmath::vectorized`].
 #[inline(always)]
-pub(crate) fn js_row(p: &[f32], ln_p: &[f32], q: &[f32], terms: &mut [f32], ln: impl Fn(f32) -> f32) -> f32 {
+pub(crate) fn js_row(p: &[f32], ln_p: &[f32], q: &[f32], terms: &mut [f32]) -> f32 {
     for (((t, &pj), &lpj), &qj) in terms.iter_mut().zip(p).zip(ln_p).zip(q) {
-        let lm = ln(0.5 * (pj + qj) + JS_EPS);
-        *t = pj * (lpj - lm) + qj * (ln(qj + JS_EPS) - lm);
+        let lm = vmath::ln(0.5 * (pj + qj) + JS_EPS);
+        *t = pj * (lpj - lm) + qj * (vmath::ln(qj + JS_EPS) - lm);
     }
     0.5 * vmath::sum(terms)
+}
+
+/// `Σⱼ mⱼ ln(mⱼ + ε)` of the mixture `m = (p + q)/2` of two rows, with `terms` as scratch and
+/// the logarithm [`vmath::ln_fast`]. With the rows' own `Σ pⱼ ln(pⱼ + ε)` and `Σ qⱼ ln qⱼ` it
+/// gives `JS(p, q) = ½ (Σ p ln p + Σ q ln q) − Σ m ln m`: one logarithm per entry where
+/// [`js_row`] takes two. The streaming engine computes the TCD so ([`crate::streaming`]).
+#[inline(always)]
+pub(crate) fn mixture_entropy_row(p: &[f32], q: &[f32], terms: &mut [f32]) -> f32 {
+    for ((t, &pj), &qj) in terms.iter_mut().zip(p).zip(q) {
+        let m = 0.5 * (pj + qj);
+        *t = m * vmath::ln_fast(m + JS_EPS);
+    }
+    vmath::sum(terms)
 }
 
 /// `ln(xⱼ + ε)` of every element.
@@ -171,7 +182,7 @@ impl CustomOp2 for JsDivergence {
                 let mut out = Vec::with_capacity(g.rows);
                 for (r, q_row) in q.chunks_exact(g.len).enumerate() {
                     let off = (r % g.p_rows) * g.len;
-                    out.push(js_row(&p[off..off + g.len], &ln_p[off..off + g.len], q_row, &mut terms, vmath::ln));
+                    out.push(js_row(&p[off..off + g.len], &ln_p[off..off + g.len], q_row, &mut terms));
                 }
                 out
             },
@@ -296,6 +307,25 @@ mod tests {
     }
 
     proptest! {
+        /// The streaming engine's form `½ (Σ p ln p + Σ q ln q) − Σ m ln m`, with `Σ q ln q`
+        /// from the scores of `q`, against [`js_row`]: they differ by rounding and by at most
+        /// `len · ε` (the unguarded `Σ q ln q`), also where scores 60 apart underflow `q`.
+        #[test]
+        fn entropy_form_matches_the_row_kernel(
+            raw_p in proptest::collection::vec(-2f32..2.0, 40),
+            scores in proptest::collection::vec(-30f32..30.0, 40),
+        ) {
+            let p = distributions(&raw_p, &[40]).to_vec1::<f32>().unwrap();
+            let (mut q, mut scratch) = (scores.clone(), vec![0f32; 40]);
+            let ent_q = crate::fused::softmax_row_entropy(&mut q, &mut scratch);
+            let ln_p = ln_eps(&p);
+            let ent_p = vmath::dot(&p, &ln_p);
+            let entropy_form = 0.5 * (ent_p + ent_q) - mixture_entropy_row(&p, &q, &mut scratch);
+            let direct = js_row(&p, &ln_p, &q, &mut scratch);
+            prop_assert!((entropy_form - direct).abs() < 40.0 * JS_EPS + 2e-6, "{entropy_form} vs {direct}");
+            prop_assert!((-1e-6..=std::f32::consts::LN_2 + 1e-6).contains(&entropy_form));
+        }
+
         #[test]
         fn kernel_matches_the_composed_definition(
             raw_p in proptest::collection::vec(-2f32..2.0, 24),

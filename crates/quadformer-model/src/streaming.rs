@@ -4,7 +4,7 @@
 //!
 //! It computes what [`QuadFormerNet::forward_steps`] with [`Steps::Last`] computes, from the
 //! same weights, in plain `f32` buffers ([`crate::matmul`], the element-wise kernels of
-//! [`crate::fused`] and [`crate::js`]), and does less work in four exact ways:
+//! [`crate::fused`] and [`crate::js`]), and does less work in five ways, exact but for rounding:
 //!
 //! 1. **Layer 1 is linear in each residue.** Its input is `h⁰ᵢ = xᵢ W_e + b_e + PEᵢ` and its
 //!    projections `Q¹ᵢ = h⁰ᵢ W_Q + b_Q` (likewise `K¹`, `V¹`), so each splits into a part of
@@ -21,12 +21,17 @@
 //!    space and the `l × d × d` output product disappears (layer 1's ring holds `V W_O`). With
 //!    several heads the folded values would cost a product per head, so they stay apart.
 //! 4. **Nothing is allocated** after construction: every intermediate has its buffer.
+//! 5. **The TCD takes one logarithm per entry.** `JS(T, C) = ½ (Σ T ln T + Σ C ln C) −
+//!    Σ M ln M` with `M = (T + C)/2`: the prior's `Σ T ln T` is frozen with it, and the
+//!    attention's comes from its scores, `Σ C ln C = Σ C (s − max s) − ln Σ exp(s − max s)`, as
+//!    the softmax forms `C`. Only `ln(M + ε)` is taken per entry, from [`vmath::ln_fast`]
+//!    (within 1.4 units in the last place, against 0.7 for [`vmath::ln`], at four fifths of its
+//!    cost).
 //!
-//! The results equal the candle forward pass up to `f32` rounding: sums are reassociated, and
-//! the Jensen–Shannon terms of the TCD take their two logarithms per entry, `ln(Cᵢⱼ + ε)` and
-//! `ln(Mᵢⱼ + ε)`, from [`vmath::ln_fast`] (within 1.4 units in the last place, against 0.7 for
-//! [`vmath::ln`], at four fifths of its cost; they are 60,000 of a default decision's work). The
-//! tests bound the difference. The TPC priors and their `ln(T + ε)` are frozen at construction; the
+//! The results equal the candle forward pass up to `f32` rounding: sums are reassociated,
+//! logarithms differ in the last place, and the attention's `Σ C ln C` (and a Gaussian prior's)
+//! has no guard `ε` where [`crate::js`] takes `Σ C ln(C + ε)`, which moves a step's TCD by at most `l ε` (10⁻⁶ for
+//! `l` = 100). The tests bound the difference. The TPC priors are frozen at construction; the
 //! Gaussian prior of the "TPC off" ablation depends on the input and is rebuilt per window.
 //!
 //! Until `l` residues have been seen the window is padded at the front with the first one, as
@@ -35,8 +40,8 @@
 use candle_core::Tensor;
 
 use crate::error::{ModelError, Result};
-use crate::fused::{add_bias_row, gelu_value, layer_norm_row, softmax_row};
-use crate::js::{JS_EPS, js_row};
+use crate::fused::{add_bias_row, gelu_value, layer_norm_row, softmax_row, softmax_row_entropy};
+use crate::js::mixture_entropy_row;
 use crate::layers::LN_EPS;
 use crate::matmul::{MatMut, MatRef, matmul};
 use crate::model::{ClassInput, PRIOR_EXP_FLOOR, Prior, QuadFormerNet};
@@ -131,8 +136,8 @@ fn var(net: &QuadFormerNet, name: &str) -> Result<Tensor> {
 /// The prior association `T` of one layer.
 #[derive(Clone)]
 enum LayerPrior {
-    /// Frozen TPC maps `heads × l × l` and their `ln(T + ε)`.
-    Tpc { t: Vec<f32>, ln_t: Vec<f32> },
+    /// Frozen TPC maps `heads × l × l` and the `Σⱼ Tᵢⱼ ln(Tᵢⱼ + ε)` of their rows.
+    Tpc { t: Vec<f32>, ent: Vec<f32> },
     /// Anomaly Transformer's Gaussian kernel; its width is a projection of the layer input.
     Gaussian { sigma: Linear },
 }
@@ -183,11 +188,12 @@ struct Scratch {
     /// `c H` of every head (last layer).
     ctx: Vec<f32>,
     ff: Vec<f32>,
-    /// Every layer's attention `C` (`heads × rows × l`) and Gaussian prior `T` (`heads × l × l`)
-    /// with its `ln(T + ε)`.
+    /// Every layer's attention `C` (`heads × rows × l`) and Gaussian prior `T` (`heads × l × l`),
+    /// and the `Σⱼ xᵢⱼ ln xᵢⱼ` of their rows (only for the TCD).
     attn: Vec<Vec<f32>>,
+    ent_attn: Vec<Vec<f32>>,
     prior: Vec<Vec<f32>>,
-    ln_prior: Vec<Vec<f32>>,
+    ent_prior: Vec<Vec<f32>>,
     /// Gaussian widths of every step and head, `l × heads`.
     sigma: Vec<f32>,
     r_hat: Vec<f32>,
@@ -248,7 +254,9 @@ impl StreamingNet {
                         #[inline(always)]
                         || crate::js::ln_eps(&t),
                     );
-                    LayerPrior::Tpc { t, ln_t }
+                    let ent =
+                        t.chunks_exact(l).zip(ln_t.chunks_exact(l)).map(|(t, ln_t)| vmath::dot(t, ln_t)).collect();
+                    LayerPrior::Tpc { t, ent }
                 }
                 Prior::Gaussian => LayerPrior::Gaussian { sigma: Linear::load(net, &name("attn.sigma"))? },
             };
@@ -282,11 +290,12 @@ impl StreamingNet {
             ctx: zeros(heads * d),
             ff: zeros(l * d_ff),
             attn: (0..n_layers).map(|_| zeros(heads * l * l)).collect(),
+            ent_attn: (0..n_layers).map(|_| zeros(heads * l)).collect(),
             prior: (0..n_layers)
                 .map(|_| if cfg.prior == Prior::Gaussian { zeros(heads * l * l) } else { Vec::new() })
                 .collect(),
-            ln_prior: (0..n_layers)
-                .map(|_| if cfg.prior == Prior::Gaussian { zeros(heads * l * l) } else { Vec::new() })
+            ent_prior: (0..n_layers)
+                .map(|_| if cfg.prior == Prior::Gaussian { zeros(heads * l) } else { Vec::new() })
                 .collect(),
             sigma: zeros(l * heads),
             r_hat: zeros(m),
@@ -438,8 +447,15 @@ impl StreamingNet {
                     scale,
                     false,
                 )?;
-                for row in c.chunks_exact_mut(l) {
-                    softmax_row(row);
+                if with_tcd {
+                    let ent = &mut s.ent_attn[idx][hd * q_rows..(hd + 1) * q_rows];
+                    for (row, e) in c.chunks_exact_mut(l).zip(ent) {
+                        *e = softmax_row_entropy(row, &mut s.terms);
+                    }
+                } else {
+                    for row in c.chunks_exact_mut(l) {
+                        softmax_row(row);
+                    }
                 }
             }
             // Attention output of the `out_rows` newest rows, heads side by side.
@@ -477,7 +493,7 @@ impl StreamingNet {
             // Gaussian prior from this layer's input (only for the TCD).
             if with_tcd && let LayerPrior::Gaussian { sigma } = &layer.prior {
                 sigma.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.sigma, l)?;
-                gaussian_prior(&s.sigma, heads, l, &mut s.prior[idx], &mut s.ln_prior[idx]);
+                gaussian_prior(&s.sigma, heads, l, &mut s.prior[idx], &mut s.ent_prior[idx], &mut s.terms);
             }
             // `Z = Norm(C V W_O + b_O + H)` on the newest `out_rows` rows.
             let rows = out_rows * d;
@@ -538,23 +554,25 @@ impl StreamingNet {
         Ok(())
     }
 
-    /// TCD of every step: mean over layers and heads of `JS(Tᵢ ‖ Cᵢ)`, with the attention's
-    /// logarithms from [`vmath::ln_fast`] (module docs).
+    /// TCD of every step: mean over layers and heads of
+    /// `JS(Tᵢ ‖ Cᵢ) = ½ (Σ T ln T + Σ C ln C) − Σ M ln M` (module docs).
     #[inline(always)]
     fn tcd(&mut self) {
         let (l, heads) = (self.l, self.heads);
         let s = &mut self.s;
         s.tcd.fill(0.0);
         for (idx, layer) in self.layers.iter().enumerate() {
-            let (t, ln_t) = match &layer.prior {
-                LayerPrior::Tpc { t, ln_t } => (&t[..], &ln_t[..]),
-                LayerPrior::Gaussian { .. } => (&s.prior[idx][..], &s.ln_prior[idx][..]),
+            let (t, ent_t) = match &layer.prior {
+                LayerPrior::Tpc { t, ent } => (&t[..], &ent[..]),
+                LayerPrior::Gaussian { .. } => (&s.prior[idx][..], &s.ent_prior[idx][..]),
             };
+            let ent_c = &s.ent_attn[idx];
             for i in 0..l {
                 let mut js = 0.0;
                 for hd in 0..heads {
-                    let r = (hd * l + i) * l..(hd * l + i + 1) * l;
-                    js += js_row(&t[r.clone()], &ln_t[r.clone()], &s.attn[idx][r], &mut s.terms, vmath::ln_fast);
+                    let (row, r) = (hd * l + i, (hd * l + i) * l..(hd * l + i + 1) * l);
+                    js += 0.5 * (ent_t[row] + ent_c[row])
+                        - mixture_entropy_row(&t[r.clone()], &s.attn[idx][r], &mut s.terms);
                 }
                 s.tcd[i] += js / heads as f32;
             }
@@ -597,26 +615,23 @@ fn layer_one_parts(embed: &Linear, pos: &[f32], layer: &LayerW, l: usize) -> Res
 
 /// Anomaly Transformer's Gaussian prior from the width projections `s` (`l × heads`):
 /// `σ = 3^(sigmoid(5s) + 10⁻⁵) − 1`, `Tᵢⱼ ∝ exp(−|j − i|²/(2σᵢ²))` (exponent clamped at
-/// [`PRIOR_EXP_FLOOR`]), as [`QuadFormerNet`] builds it; `t` and `ln_t` are `heads × l × l`.
+/// [`PRIOR_EXP_FLOOR`]), as [`QuadFormerNet`] builds it: the softmax of the exponents, whose
+/// maximum is 0. `t` is `heads × l × l`, `ent` (`heads × l`) the `Σⱼ Tᵢⱼ ln Tᵢⱼ` of its rows;
+/// `shifted` (`l` values) is scratch.
 #[inline(always)]
-fn gaussian_prior(s: &[f32], heads: usize, l: usize, t: &mut [f32], ln_t: &mut [f32]) {
+fn gaussian_prior(s: &[f32], heads: usize, l: usize, t: &mut [f32], ent: &mut [f32], shifted: &mut [f32]) {
     let floor = PRIOR_EXP_FLOOR as f32;
     for hd in 0..heads {
         for i in 0..l {
             let u = 1.0 / (1.0 + vmath::exp(-5.0 * s[i * heads + hd])) + 1e-5;
             let sigma = vmath::exp(u * 3f32.ln()) - 1.0;
             let two_var = 2.0 * sigma * sigma;
-            let r = (hd * l + i) * l..(hd * l + i + 1) * l;
-            let row = &mut t[r.clone()];
+            let row = &mut t[(hd * l + i) * l..(hd * l + i + 1) * l];
             for (j, v) in row.iter_mut().enumerate() {
                 let dist = j as f32 - i as f32;
-                *v = vmath::exp((-(dist * dist) / two_var).clamp(floor, 0.0));
+                *v = (-(dist * dist) / two_var).clamp(floor, 0.0);
             }
-            let sum = vmath::sum(row);
-            for (v, lv) in row.iter_mut().zip(&mut ln_t[r]) {
-                *v /= sum;
-                *lv = vmath::ln(*v + JS_EPS);
-            }
+            ent[hd * l + i] = softmax_row_entropy(row, shifted);
         }
     }
 }
