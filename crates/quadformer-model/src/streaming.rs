@@ -27,6 +27,15 @@
 //!    the softmax forms `C`. Only `ln(M + ε)` is taken per entry, from [`vmath::ln_fast`]
 //!    (within 1.4 units in the last place, against 0.7 for [`vmath::ln`], at four fifths of its
 //!    cost).
+//! 6. **With DCM and one head, no layer after the first forms queries and keys.** Layer `h`
+//!    scores its queries against the keys of layer `h − 1`, `Kʰ⁻¹ = H' W'_K + b'_K` with `H'`
+//!    that layer's input, so `Q Kʰ⁻¹ᵀ = (H W_Q + b_Q)(W'_K H'ᵀ + b'_Kᵀ)`. Terms constant along a
+//!    row leave the softmax unchanged and are dropped, leaving `(H F + f) H'ᵀ` with
+//!    `F = W_Q W'_Kᵀ/√d` and `f = b_Q W'_Kᵀ/√d` formed once: one `d × d` product per query
+//!    row where the queries and the previous layer's keys took one per query and per key. For
+//!    layer 2 the other order is cheaper still: `(H W_Q + b_Q) K¹ᵀ/√d = H κᵀ + 1 βᵀ` with
+//!    `[κⱼ | βⱼ] = K¹ⱼ [W_Q | b_Q]ᵀ/√d`, which is affine in each residue and so joins the ring
+//!    (point 1): layer 2 takes no product for its scores but the scores themselves.
 //!
 //! The results equal the candle forward pass up to `f32` rounding: sums are reassociated,
 //! logarithms differ in the last place, and the attention's `Σ C ln C` (and a Gaussian prior's)
@@ -70,12 +79,12 @@ impl Linear {
         Ok(Self { w, b, n_in, n_out })
     }
 
-    /// `u W + bias·b` of one row `u`, accumulated in `f64` (for weights formed once).
-    fn apply_f64(&self, u: &[f64], bias: f64) -> Vec<f32> {
+    /// `u W + bias·b` of one row `u`, in `f64` (for weights formed once).
+    fn apply_f64(&self, u: &[f64], bias: f64) -> Vec<f64> {
         (0..self.n_out)
             .map(|j| {
                 let acc: f64 = u.iter().enumerate().map(|(k, uk)| uk * f64::from(self.w[k * self.n_out + j])).sum();
-                (acc + bias * f64::from(self.b[j])) as f32
+                acc + bias * f64::from(self.b[j])
             })
             .collect()
     }
@@ -83,8 +92,25 @@ impl Linear {
     /// The composition `x ↦ (x W + b) W' + b'` of this layer and `next`, as one layer
     /// (accumulated in `f64`).
     fn then(&self, next: &Linear) -> Self {
-        let w = self.w.chunks_exact(self.n_out).flat_map(|row| next.apply_f64(&to_f64(row), 0.0)).collect();
-        Self { w, b: next.apply_f64(&to_f64(&self.b), 1.0), n_in: self.n_in, n_out: next.n_out }
+        let w = self.w.chunks_exact(self.n_out).flat_map(|row| to_f32(&next.apply_f64(&to_f64(row), 0.0))).collect();
+        Self { w, b: to_f32(&next.apply_f64(&to_f64(&self.b), 1.0)), n_in: self.n_in, n_out: next.n_out }
+    }
+
+    /// `x ↦ c x Wᵀ`, without bias.
+    fn transposed(&self, c: f32) -> Self {
+        let w = (0..self.n_in * self.n_out).map(|k| c * self.w[(k % self.n_in) * self.n_out + k / self.n_in]).collect();
+        Self { w, b: vec![0.0; self.n_in], n_in: self.n_out, n_out: self.n_in }
+    }
+
+    /// `k ↦ c [k W_Qᵀ | k·b_Q]` of this query projection, without bias: what layer 2's folded
+    /// scores read of a key `k` of layer 1 ([`Scores::RingKeys`]).
+    fn key_map(&self, c: f32) -> Self {
+        let mut w = Vec::with_capacity(self.n_out * (self.n_in + 1));
+        for j in 0..self.n_out {
+            w.extend((0..self.n_in).map(|a| c * self.w[a * self.n_out + j]));
+            w.push(c * self.b[j]);
+        }
+        Self { w, b: vec![0.0; self.n_in + 1], n_in: self.n_out, n_out: self.n_in + 1 }
     }
 
     /// `dst ← x W + b` for the `rows` rows of `x`.
@@ -125,6 +151,10 @@ fn to_f64(xs: &[f32]) -> Vec<f64> {
     xs.iter().map(|&v| f64::from(v)).collect()
 }
 
+fn to_f32(xs: &[f64]) -> Vec<f32> {
+    xs.iter().map(|&v| v as f32).collect()
+}
+
 /// The value of the variable `name`.
 fn var(net: &QuadFormerNet, name: &str) -> Result<Tensor> {
     let data = net.varmap().data().lock().map_err(|_| ModelError::Data { msg: "variable map poisoned".into() })?;
@@ -142,9 +172,25 @@ enum LayerPrior {
     Gaussian { sigma: Linear },
 }
 
+/// How a layer forms its attention scores `S = Q Kᵀ/√d_h` (module docs, point 6).
+#[derive(Clone)]
+enum Scores {
+    /// From the projected queries and keys: this layer's own keys, or with DCM the previous
+    /// layer's. Layer 1 reads its projections from the ring.
+    Projected,
+    /// Layer 2 with DCM and one head: `S = H κᵀ + 1 βᵀ`, where `[κⱼ | βⱼ] = K¹ⱼ [W_Q | b_Q]ᵀ/√d`
+    /// is affine in residue `j` and so held in the ring.
+    RingKeys,
+    /// A later layer with DCM and one head: `S ≅ (H F + f) H'ᵀ` with `H'` the previous
+    /// layer's input, `F = W_Q W'_Kᵀ/√d` and `f = b_Q W'_Kᵀ/√d` (this linear map); the
+    /// previous layer's keys are never formed.
+    Folded(Linear),
+}
+
 /// One UAV Attack Attention layer's weights.
 #[derive(Clone)]
 struct LayerW {
+    scores: Scores,
     w_q: Linear,
     w_k: Linear,
     /// The value projection; with one head, `W_V W_O` and `b_V W_O + b_O` (module docs).
@@ -172,14 +218,19 @@ pub struct StepOutput<'a> {
 /// Per-window intermediates, allocated once.
 #[derive(Clone)]
 struct Scratch {
-    /// Layer-1 input and projections `[h⁰ | Q¹ | K¹ | V¹]`, `l × 4d`.
+    /// Layer-1 input and projections `[h⁰ | Q¹ | K¹ | V¹]` (and `[κ | β]` of
+    /// [`Scores::RingKeys`]), `l × w_ring`.
     x0: Vec<f32>,
-    /// A layer's input `H` (`l × d`, layers after the first), then its output.
+    /// A layer's input `H` (`l × d`, layers after the first), then its output; and the
+    /// previous layer's input.
     h: Vec<f32>,
+    h_prev: Vec<f32>,
     q: Vec<f32>,
     /// This layer's keys, and the previous layer's (DCM).
     k: Vec<f32>,
     k_prev: Vec<f32>,
+    /// `β` of [`Scores::RingKeys`], `l` values.
+    beta: Vec<f32>,
     v: Vec<f32>,
     /// Attention output (before `W_O`, or after it when folded).
     att: Vec<f32>,
@@ -217,6 +268,9 @@ pub struct StreamingNet {
     w_in: Vec<f32>,
     /// `(b_e + PEᵢ)[I | W_Q¹ | W_K¹ | W_V¹] + [0 | b_Q¹ | b_K¹ | b_V¹]`, `l × 4d`.
     p_in: Vec<f32>,
+    /// Width of a row of the ring, `w_in` and `p_in`: `4d`, and `d + 1` more with
+    /// [`Scores::RingKeys`].
+    w_ring: usize,
     layers: Vec<LayerW>,
     recon: Linear,
     class1: Linear,
@@ -240,7 +294,7 @@ impl StreamingNet {
         let embed = Linear::load(net, "embed")?;
         let pos = net.positional_encoding().flatten_all()?.to_vec1::<f32>()?;
         let mut tpc = net.tpc_priors()?.into_iter();
-        let mut layers = Vec::with_capacity(n_layers);
+        let mut layers: Vec<LayerW> = Vec::with_capacity(n_layers);
         for h in 0..n_layers {
             let name = |part: &str| format!("layers.{h}.{part}");
             let prior = match cfg.prior {
@@ -262,8 +316,16 @@ impl StreamingNet {
             };
             let (w_v, w_o) = (Linear::load(net, &name("attn.w_v"))?, Linear::load(net, &name("attn.w_o"))?);
             let (w_v, w_o) = if heads == 1 { (w_v.then(&w_o), None) } else { (w_v, Some(w_o)) };
+            let w_q = Linear::load(net, &name("attn.w_q"))?;
+            let scale = 1.0 / ((d / heads) as f32).sqrt();
+            let scores = match (layers.last(), h) {
+                (Some(_), 1) if cfg.dcm && heads == 1 => Scores::RingKeys,
+                (Some(prev), _) if cfg.dcm && heads == 1 => Scores::Folded(w_q.then(&prev.w_k.transposed(scale))),
+                _ => Scores::Projected,
+            };
             layers.push(LayerW {
-                w_q: Linear::load(net, &name("attn.w_q"))?,
+                scores,
+                w_q,
                 w_k: Linear::load(net, &name("attn.w_k"))?,
                 w_v,
                 w_o,
@@ -275,15 +337,22 @@ impl StreamingNet {
             });
         }
         let first = layers.first().ok_or_else(|| ModelError::Data { msg: "the network has no layers".into() })?;
-        let (w_in, p_in) = layer_one_parts(&embed, &pos, first, l)?;
+        let key_map = match layers.get(1) {
+            Some(LayerW { scores: Scores::RingKeys, w_q, .. }) => Some(w_q.key_map(1.0 / (d as f32).sqrt())),
+            _ => None,
+        };
+        let (w_in, p_in) = layer_one_parts(&embed, &pos, first, key_map.as_ref(), l)?;
+        let w_ring = w_in.len() / m;
         let d_ff = cfg.d_ff;
         let zeros = |n: usize| vec![0f32; n];
         let s = Scratch {
-            x0: zeros(l * 4 * d),
+            x0: zeros(l * w_ring),
             h: zeros(l * d),
+            h_prev: zeros(l * d),
             q: zeros(l * d),
             k: zeros(l * d),
             k_prev: zeros(l * d),
+            beta: zeros(l),
             v: zeros(l * d),
             att: zeros(l * d),
             z: zeros(l * d),
@@ -313,11 +382,12 @@ impl StreamingNet {
             class_input: cfg.class_input,
             w_in,
             p_in,
+            w_ring,
             layers,
             recon: Linear::load(net, "recon")?,
             class1: Linear::load(net, "class1")?,
             class2: Linear::load(net, "class2")?,
-            ring: zeros(l * 4 * d),
+            ring: zeros(l * w_ring),
             start: 0,
             n_seen: 0,
             s,
@@ -360,7 +430,7 @@ impl StreamingNet {
     /// Stores the residue part of layer 1's input and projections in the ring (every slot for
     /// the first residue: front padding).
     fn push_residue(&mut self, x: &[f32]) -> Result<()> {
-        let w = 4 * self.d;
+        let w = self.w_ring;
         let slot = if self.n_seen == 0 { 0 } else { self.start };
         let row = &mut self.ring[slot * w..(slot + 1) * w];
         matmul(
@@ -391,15 +461,15 @@ impl StreamingNet {
         let (l, d, heads) = (self.l, self.d, self.heads);
         let dh = d / heads;
         let scale = 1.0 / (dh as f32).sqrt();
-        let w4 = 4 * d;
+        let w_ring = self.w_ring;
         let s = &mut self.s;
         // Layer 1's input and projections: ring (oldest first) plus the position part.
         for i in 0..l {
             let slot = (self.start + i) % l;
             let (dst, ring, pos) = (
-                &mut s.x0[i * w4..(i + 1) * w4],
-                &self.ring[slot * w4..(slot + 1) * w4],
-                &self.p_in[i * w4..(i + 1) * w4],
+                &mut s.x0[i * w_ring..(i + 1) * w_ring],
+                &self.ring[slot * w_ring..(slot + 1) * w_ring],
+                &self.p_in[i * w_ring..(i + 1) * w_ring],
             );
             for ((o, a), b) in dst.iter_mut().zip(ring).zip(pos) {
                 *o = a + b;
@@ -412,50 +482,75 @@ impl StreamingNet {
             let q_rows = if with_tcd || !last { l } else { 1 };
             let first_q = l - q_rows;
             // Input `H`, queries, own keys and values as views (row stride), layer 1 from `x0`.
-            let (h_in, h_rs): (&[f32], usize) = if idx == 0 { (&s.x0, w4) } else { (&s.h, d) };
-            let own_keys_needed = !self.dcm || idx == 0;
-            let keys_for_next = self.dcm && !last;
-            if idx > 0 {
-                let h_q = MatRef::new(&h_in[first_q * h_rs..], q_rows, d, h_rs, 1)?;
-                layer.w_q.forward(h_q, &mut s.q, q_rows)?;
-                if own_keys_needed || keys_for_next {
-                    layer.w_k.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.k, l)?;
+            let (h_in, h_rs): (&[f32], usize) = if idx == 0 { (&s.x0, w_ring) } else { (&s.h, d) };
+            // Keys this layer projects for the next one (DCM, several heads).
+            let keys_for_next =
+                self.dcm && self.layers.get(idx + 1).is_some_and(|next| matches!(next.scores, Scores::Projected));
+            if idx > 0 && out_rows == l {
+                layer.w_v.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.v, l)?;
+            }
+            // Scores `Q Kᵀ/√d` per head (eq:first_layer_attention, eq:cross_layer_attention).
+            let attn = &mut s.attn[idx];
+            let h_q = MatRef::new(&h_in[first_q * h_rs..], q_rows, d, h_rs, 1)?;
+            match &layer.scores {
+                Scores::Projected => {
+                    if idx > 0 {
+                        layer.w_q.forward(h_q, &mut s.q, q_rows)?;
+                        if !self.dcm || keys_for_next {
+                            layer.w_k.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.k, l)?;
+                        }
+                    } else if keys_for_next {
+                        for (dst, src) in s.k.chunks_exact_mut(d).zip(s.x0.chunks_exact(w_ring)) {
+                            dst.copy_from_slice(&src[2 * d..3 * d]);
+                        }
+                    }
+                    let (q, q_rs, q_off) =
+                        if idx == 0 { (&s.x0[..], w_ring, first_q * w_ring + d) } else { (&s.q[..], d, 0) };
+                    let (keys, k_rs, k_off) = match (idx, self.dcm) {
+                        (0, _) => (&s.x0[..], w_ring, 2 * d),
+                        (_, true) => (&s.k_prev[..], d, 0),
+                        (_, false) => (&s.k[..], d, 0),
+                    };
+                    for hd in 0..heads {
+                        matmul(
+                            MatMut::rows(&mut attn[hd * q_rows * l..(hd + 1) * q_rows * l], q_rows, l)?,
+                            MatRef::new(&q[q_off + hd * dh..], q_rows, dh, q_rs, 1)?,
+                            MatRef::new(&keys[k_off + hd * dh..], l, dh, k_rs, 1)?.t(),
+                            scale,
+                            false,
+                        )?;
+                    }
                 }
-                if out_rows == l {
-                    layer.w_v.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.v, l)?;
+                Scores::RingKeys => {
+                    let kappa = MatRef::new(&s.x0[4 * d..], l, d, w_ring, 1)?;
+                    matmul(MatMut::rows(attn, q_rows, l)?, h_q, kappa.t(), 1.0, false)?;
+                    for (b, row) in s.beta.iter_mut().zip(s.x0.chunks_exact(w_ring)) {
+                        *b = row[5 * d];
+                    }
+                    for row in attn[..q_rows * l].chunks_exact_mut(l) {
+                        add_bias_row(row, &s.beta);
+                    }
                 }
-            } else if keys_for_next {
-                for (dst, src) in s.k.chunks_exact_mut(d).zip(s.x0.chunks_exact(w4)) {
-                    dst.copy_from_slice(&src[2 * d..3 * d]);
+                Scores::Folded(fold) => {
+                    fold.forward(h_q, &mut s.q, q_rows)?;
+                    matmul(
+                        MatMut::rows(attn, q_rows, l)?,
+                        MatRef::rows(&s.q, q_rows, d)?,
+                        MatRef::rows(&s.h_prev, l, d)?.t(),
+                        1.0,
+                        false,
+                    )?;
                 }
             }
-            let (q, q_rs, q_off) = if idx == 0 { (&s.x0[..], w4, first_q * w4 + d) } else { (&s.q[..], d, 0) };
-            let (keys, k_rs, k_off) = match (idx, self.dcm) {
-                (0, _) => (&s.x0[..], w4, 2 * d),
-                (_, true) => (&s.k_prev[..], d, 0),
-                (_, false) => (&s.k[..], d, 0),
-            };
-            // Attention `C = softmax(Q Kᵀ/√d)` per head (eq:first_layer_attention,
-            // eq:cross_layer_attention).
-            let attn = &mut s.attn[idx];
-            for hd in 0..heads {
-                let c = &mut attn[hd * q_rows * l..(hd + 1) * q_rows * l];
-                matmul(
-                    MatMut::rows(c, q_rows, l)?,
-                    MatRef::new(&q[q_off + hd * dh..], q_rows, dh, q_rs, 1)?,
-                    MatRef::new(&keys[k_off + hd * dh..], l, dh, k_rs, 1)?.t(),
-                    scale,
-                    false,
-                )?;
-                if with_tcd {
-                    let ent = &mut s.ent_attn[idx][hd * q_rows..(hd + 1) * q_rows];
-                    for (row, e) in c.chunks_exact_mut(l).zip(ent) {
-                        *e = softmax_row_entropy(row, &mut s.terms);
-                    }
-                } else {
-                    for row in c.chunks_exact_mut(l) {
-                        softmax_row(row);
-                    }
+            // Attention `C = softmax(S)`, with `Σ C ln C` of every row for the TCD.
+            let maps = &mut attn[..heads * q_rows * l];
+            if with_tcd {
+                for (row, e) in maps.chunks_exact_mut(l).zip(&mut s.ent_attn[idx]) {
+                    *e = softmax_row_entropy(row, &mut s.terms);
+                }
+            } else {
+                for row in maps.chunks_exact_mut(l) {
+                    softmax_row(row);
                 }
             }
             // Attention output of the `out_rows` newest rows, heads side by side.
@@ -463,7 +558,7 @@ impl StreamingNet {
                 MatRef::rows(&attn[(hd * q_rows + q_rows - out_rows) * l..(hd + 1) * q_rows * l], out_rows, l)
             };
             if idx == 0 || out_rows == l {
-                let (v, v_rs, v_off) = if idx == 0 { (&s.x0[..], w4, 3 * d) } else { (&s.v[..], d, 0) };
+                let (v, v_rs, v_off) = if idx == 0 { (&s.x0[..], w_ring, 3 * d) } else { (&s.v[..], d, 0) };
                 for hd in 0..heads {
                     matmul(
                         MatMut::new(&mut s.att[hd * dh..], out_rows, dh, d, 1)?,
@@ -521,6 +616,8 @@ impl StreamingNet {
             for v in &mut s.ff[..out_rows * layer.ff1.n_out] {
                 *v = gelu_value(*v);
             }
+            // The input `H` stays as the next layer's `H'` ([`Scores::Folded`]).
+            std::mem::swap(&mut s.h, &mut s.h_prev);
             for (h_row, z_row) in s.h[..rows].chunks_exact_mut(d).zip(s.z.chunks_exact(d)) {
                 h_row.copy_from_slice(z_row);
                 add_bias_row(h_row, &layer.ff2.b);
@@ -586,8 +683,15 @@ impl StreamingNet {
 
 /// Layer 1's residue and position parts (module docs, point 1): `[W_e | W_e W_Q | W_e W_K |
 /// W_e W_V]` (`m × 4d`) and `(b_e + PEᵢ)[I | W_Q | W_K | W_V] + [0 | b_Q | b_K | b_V]`
-/// (`l × 4d`), accumulated in `f64`.
-fn layer_one_parts(embed: &Linear, pos: &[f32], layer: &LayerW, l: usize) -> Result<(Vec<f32>, Vec<f32>)> {
+/// (`l × 4d`), accumulated in `f64`; with `key_map`, each row's key through it is appended
+/// ([`Scores::RingKeys`]).
+fn layer_one_parts(
+    embed: &Linear,
+    pos: &[f32],
+    layer: &LayerW,
+    key_map: Option<&Linear>,
+    l: usize,
+) -> Result<(Vec<f32>, Vec<f32>)> {
     let d = embed.n_out;
     if pos.len() != l * d {
         return Err(ModelError::Data {
@@ -595,13 +699,15 @@ fn layer_one_parts(embed: &Linear, pos: &[f32], layer: &LayerW, l: usize) -> Res
         });
     }
     // Row `u` (`d` values) through the identity and the three projections (`bias` times their
-    // biases).
+    // biases), and its key through `key_map`.
     let through = |u: &[f64], bias: f64| -> Vec<f32> {
-        let mut out: Vec<f32> = u.iter().map(|&v| v as f32).collect();
-        for proj in [&layer.w_q, &layer.w_k, &layer.w_v] {
-            out.extend(proj.apply_f64(u, bias));
-        }
-        out
+        let key = layer.w_k.apply_f64(u, bias);
+        let folded_key = key_map.map(|map| map.apply_f64(&key, 0.0)).unwrap_or_default();
+        [u, &layer.w_q.apply_f64(u, bias), &key, &layer.w_v.apply_f64(u, bias), &folded_key]
+            .concat()
+            .iter()
+            .map(|&v| v as f32)
+            .collect()
     };
     let w_in = embed.w.chunks_exact(d).flat_map(|row| through(&to_f64(row), 0.0)).collect();
     let p_in = pos

@@ -101,6 +101,9 @@ fn reconstruction_input_and_other_depths_match_candle() {
     agrees_with_candle(&NetConfig { n_layers: 1, ..small() }, true);
     agrees_with_candle(&NetConfig { n_layers: 1, ..small() }, false);
     agrees_with_candle(&NetConfig { n_layers: 2, p: 1.0, ..small() }, false);
+    agrees_with_candle(&NetConfig { n_layers: 2, ..small() }, true);
+    agrees_with_candle(&NetConfig { n_layers: 4, ..small() }, true);
+    agrees_with_candle(&NetConfig { n_layers: 4, ..small() }, false);
 }
 
 #[test]
