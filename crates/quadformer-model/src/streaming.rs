@@ -36,6 +36,12 @@
 //!    layer 2 the other order is cheaper still: `(H W_Q + b_Q) K¹ᵀ/√d = H κᵀ + 1 βᵀ` with
 //!    `[κⱼ | βⱼ] = K¹ⱼ [W_Q | b_Q]ᵀ/√d`, which is affine in each residue and so joins the ring
 //!    (point 1): layer 2 takes no product for its scores but the scores themselves.
+//! 7. **Layer 1 scores in the residues' rank.** With `Q¹ = X W_e W_Q + P_Q` and
+//!    `K¹ = X W_e W_K + P_K` (`X` the window's `l × m` residues, `P` the position parts),
+//!    `Q¹K¹ᵀ = [X G + B | X][X | Aᵀ]ᵀ + E` with `G = W_e W_Q (W_e W_K)ᵀ`, `B = P_Q (W_e W_K)ᵀ`,
+//!    `A = W_e W_Q P_Kᵀ` and `E = P_Q P_Kᵀ` formed once: an inner dimension of `2m` instead of
+//!    `d`. The ring holds `[x G + B | x | Aᵀ]` (residue and position parts, as in point 1). Used
+//!    when `2m` is below a head's width (12 against 64 by default).
 //!
 //! The results equal the candle forward pass up to `f32` rounding: sums are reassociated,
 //! logarithms differ in the last place, and the attention's `Σ C ln C` (and a Gaussian prior's)
@@ -181,6 +187,11 @@ enum Scores {
     /// Layer 2 with DCM and one head: `S = H κᵀ + 1 βᵀ`, where `[κⱼ | βⱼ] = K¹ⱼ [W_Q | b_Q]ᵀ/√d`
     /// is affine in residue `j` and so held in the ring.
     RingKeys,
+    /// Layer 1 in the rank of the residues: `S = [X G + B | X][X | Aᵀ]ᵀ + E` per head, with
+    /// `G = W_e W_Q (W_e W_K)ᵀ/√d`, `B = P_Q (W_e W_K)ᵀ/√d`, `A = W_e W_Q P_Kᵀ/√d`,
+    /// `E = P_Q P_Kᵀ/√d` (`P_Q`, `P_K` the position parts of `Q¹`, `K¹`). The ring holds a block
+    /// `[x G + B | x | Aᵀ]` per head from column `col`; `E` is `heads × l × l`.
+    LowRank { col: usize, e: Vec<f32> },
     /// A later layer with DCM and one head: `S ≅ (H F + f) H'ᵀ` with `H'` the previous
     /// layer's input, `F = W_Q W'_Kᵀ/√d` and `f = b_Q W'_Kᵀ/√d` (this linear map); the
     /// previous layer's keys are never formed.
@@ -341,8 +352,14 @@ impl StreamingNet {
             Some(LayerW { scores: Scores::RingKeys, w_q, .. }) => Some(w_q.key_map(1.0 / (d as f32).sqrt())),
             _ => None,
         };
-        let (w_in, p_in) = layer_one_parts(&embed, &pos, first, key_map.as_ref(), l)?;
-        let w_ring = w_in.len() / m;
+        // Layer 1's scores in the residues' rank when that is below a head's width (point 7).
+        let low_rank_heads = (2 * m < d / heads).then_some(heads);
+        let LayerOne { w_in, p_in, low_rank } =
+            layer_one_parts(&embed, &pos, first, key_map.as_ref(), low_rank_heads, l)?;
+        if let (Some(scores), Some(first)) = (low_rank, layers.first_mut()) {
+            first.scores = scores;
+        }
+        let w_ring = p_in.len() / l;
         let d_ff = cfg.d_ff;
         let zeros = |n: usize| vec![0f32; n];
         let s = Scratch {
@@ -489,6 +506,13 @@ impl StreamingNet {
             if idx > 0 && out_rows == l {
                 layer.w_v.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.v, l)?;
             }
+            if keys_for_next && idx == 0 {
+                for (dst, src) in s.k.chunks_exact_mut(d).zip(s.x0.chunks_exact(w_ring)) {
+                    dst.copy_from_slice(&src[2 * d..3 * d]);
+                }
+            } else if keys_for_next {
+                layer.w_k.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.k, l)?;
+            }
             // Scores `Q Kᵀ/√d` per head (eq:first_layer_attention, eq:cross_layer_attention).
             let attn = &mut s.attn[idx];
             let h_q = MatRef::new(&h_in[first_q * h_rs..], q_rows, d, h_rs, 1)?;
@@ -496,12 +520,8 @@ impl StreamingNet {
                 Scores::Projected => {
                     if idx > 0 {
                         layer.w_q.forward(h_q, &mut s.q, q_rows)?;
-                        if !self.dcm || keys_for_next {
+                        if !self.dcm {
                             layer.w_k.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.k, l)?;
-                        }
-                    } else if keys_for_next {
-                        for (dst, src) in s.k.chunks_exact_mut(d).zip(s.x0.chunks_exact(w_ring)) {
-                            dst.copy_from_slice(&src[2 * d..3 * d]);
                         }
                     }
                     let (q, q_rs, q_off) =
@@ -518,6 +538,21 @@ impl StreamingNet {
                             MatRef::new(&keys[k_off + hd * dh..], l, dh, k_rs, 1)?.t(),
                             scale,
                             false,
+                        )?;
+                    }
+                }
+                Scores::LowRank { col, e } => {
+                    let m = self.m;
+                    for hd in 0..heads {
+                        let c = &mut attn[hd * q_rows * l..(hd + 1) * q_rows * l];
+                        c.copy_from_slice(&e[(hd * l + first_q) * l..(hd + 1) * l * l]);
+                        let block = col + hd * 3 * m;
+                        matmul(
+                            MatMut::rows(c, q_rows, l)?,
+                            MatRef::new(&s.x0[first_q * w_ring + block..], q_rows, 2 * m, w_ring, 1)?,
+                            MatRef::new(&s.x0[block + m..], l, 2 * m, w_ring, 1)?.t(),
+                            1.0,
+                            true,
                         )?;
                     }
                 }
@@ -681,18 +716,30 @@ impl StreamingNet {
     }
 }
 
-/// Layer 1's residue and position parts (module docs, point 1): `[W_e | W_e W_Q | W_e W_K |
-/// W_e W_V]` (`m × 4d`) and `(b_e + PEᵢ)[I | W_Q | W_K | W_V] + [0 | b_Q | b_K | b_V]`
-/// (`l × 4d`), accumulated in `f64`; with `key_map`, each row's key through it is appended
-/// ([`Scores::RingKeys`]).
+/// Layer 1's residue and position parts (module docs, points 1, 6 and 7).
+struct LayerOne {
+    /// Residue part of a ring row per residue channel, `m × width`.
+    w_in: Vec<f32>,
+    /// Position part of a ring row per step, `l × width`.
+    p_in: Vec<f32>,
+    /// [`Scores::LowRank`], when asked for.
+    low_rank: Option<Scores>,
+}
+
+/// Layer 1's residue and position parts, accumulated in `f64`. A ring row is
+/// `[h⁰ | Q¹ | K¹ | V¹]`, then `[κ | β]` with `key_map` ([`Scores::RingKeys`]), then with
+/// `low_rank_heads` one block `[x G + B | x | Aᵀ]` per head ([`Scores::LowRank`]). The residue
+/// part of `[h⁰ | Q¹ | K¹ | V¹]` is `x [W_e | W_e W_Q | W_e W_K | W_e W_V]`, its position part
+/// `(b_e + PEᵢ)[I | W_Q | W_K | W_V] + [0 | b_Q | b_K | b_V]`.
 fn layer_one_parts(
     embed: &Linear,
     pos: &[f32],
     layer: &LayerW,
     key_map: Option<&Linear>,
+    low_rank_heads: Option<usize>,
     l: usize,
-) -> Result<(Vec<f32>, Vec<f32>)> {
-    let d = embed.n_out;
+) -> Result<LayerOne> {
+    let (m, d) = (embed.n_in, embed.n_out);
     if pos.len() != l * d {
         return Err(ModelError::Data {
             msg: format!("positional encoding of {} values, expected {l} × {d}", pos.len()),
@@ -700,23 +747,47 @@ fn layer_one_parts(
     }
     // Row `u` (`d` values) through the identity and the three projections (`bias` times their
     // biases), and its key through `key_map`.
-    let through = |u: &[f64], bias: f64| -> Vec<f32> {
+    const Q: usize = 1;
+    const K: usize = 2;
+    let through = |u: &[f64], bias: f64| -> [Vec<f64>; 5] {
         let key = layer.w_k.apply_f64(u, bias);
         let folded_key = key_map.map(|map| map.apply_f64(&key, 0.0)).unwrap_or_default();
-        [u, &layer.w_q.apply_f64(u, bias), &key, &layer.w_v.apply_f64(u, bias), &folded_key]
-            .concat()
-            .iter()
-            .map(|&v| v as f32)
-            .collect()
+        [u.to_vec(), layer.w_q.apply_f64(u, bias), key, layer.w_v.apply_f64(u, bias), folded_key]
     };
-    let w_in = embed.w.chunks_exact(d).flat_map(|row| through(&to_f64(row), 0.0)).collect();
-    let p_in = pos
+    let res: Vec<_> = embed.w.chunks_exact(d).map(|row| through(&to_f64(row), 0.0)).collect();
+    let posn: Vec<_> = pos
         .chunks_exact(d)
-        .flat_map(|pe| {
+        .map(|pe| {
             through(&pe.iter().zip(&embed.b).map(|(&p, &b)| f64::from(b) + f64::from(p)).collect::<Vec<_>>(), 1.0)
         })
         .collect();
-    Ok((w_in, p_in))
+    let mut w_rows: Vec<Vec<f64>> = res.iter().map(|parts| parts.concat()).collect();
+    let mut p_rows: Vec<Vec<f64>> = posn.iter().map(|parts| parts.concat()).collect();
+    let col = 4 * d + key_map.map_or(0, |map| map.n_out);
+    let low_rank = low_rank_heads.map(|heads| {
+        let dh = d / heads;
+        let scale = 1.0 / (dh as f64).sqrt();
+        let dot = |a: &[f64], b: &[f64], hd: usize| -> f64 {
+            a[hd * dh..(hd + 1) * dh].iter().zip(&b[hd * dh..(hd + 1) * dh]).map(|(x, y)| x * y).sum::<f64>() * scale
+        };
+        let mut e = Vec::with_capacity(heads * l * l);
+        for hd in 0..heads {
+            for (r, row) in w_rows.iter_mut().enumerate() {
+                row.extend(res.iter().map(|other| dot(&res[r][Q], &other[K], hd)));
+                row.extend((0..m).map(|c| if c == r { 1.0 } else { 0.0 }));
+                row.extend(std::iter::repeat_n(0.0, m));
+            }
+            for (pi, row) in posn.iter().zip(&mut p_rows) {
+                row.extend(res.iter().map(|other| dot(&pi[Q], &other[K], hd)));
+                row.extend(std::iter::repeat_n(0.0, m));
+                row.extend(res.iter().map(|other| dot(&pi[K], &other[Q], hd)));
+            }
+            e.extend(posn.iter().flat_map(|pi| posn.iter().map(move |pj| dot(&pi[Q], &pj[K], hd) as f32)));
+        }
+        Scores::LowRank { col, e }
+    });
+    let flat = |rows: Vec<Vec<f64>>| -> Vec<f32> { rows.concat().iter().map(|&v| v as f32).collect() };
+    Ok(LayerOne { w_in: flat(w_rows), p_in: flat(p_rows), low_rank })
 }
 
 /// Anomaly Transformer's Gaussian prior from the width projections `s` (`l × heads`):
