@@ -1,14 +1,20 @@
 //! Rough timing of QUADFormer's parts at the default size (development aid; the criterion
 //! benches give the reported figures): `forward` times the inference forward pass and single
-//! candle ops, `train` one summed min-max training step and its parts.
+//! candle ops, `train` one summed min-max training step and its parts, `stream tcd|plain`
+//! [`STREAM_DECISIONS`] decisions of the streaming engine with or without the TCD.
 //!
 //! `RAYON_NUM_THREADS=1 CANDLE_NUM_THREADS=1 cargo run --release -p quadformer-model --example profile -- forward|train`
+//!
+//! The streaming decisions' instructions, repeatable on a noisy machine:
+//! `valgrind --tool=callgrind --toggle-collect='*StreamingNet*push*' target/release/examples/profile stream tcd`,
+//! then divide the count by [`STREAM_DECISIONS`].
 
 use std::time::Instant;
 
 use candle_core::{D, Device, Tensor};
 use quadformer_model::fused;
 use quadformer_model::model::masked_bce_with_logits;
+use quadformer_model::streaming::StreamingNet;
 use quadformer_model::{Batch, GradFlow, LossConfig, NetConfig, QuadFormerNet, tune_allocator};
 
 /// Prints the median of `n` timed calls of `f`, after a tenth as many untimed ones.
@@ -32,8 +38,44 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     match std::env::args().nth(1).as_deref() {
         Some("forward") => forward(),
         Some("train") => train(),
-        _ => Err("usage: profile forward|train".into()),
+        Some("stream") => stream(std::env::args().nth(2).as_deref() == Some("tcd")),
+        _ => Err("usage: profile forward|train|stream [tcd|plain]".into()),
     }
+}
+
+/// Decisions `profile stream` makes.
+const STREAM_DECISIONS: usize = 400;
+
+/// Median and fastest time of the streaming engine's decisions after the first 100, on
+/// seeded residues, at the default size.
+fn stream(with_tcd: bool) -> Result<(), Box<dyn std::error::Error>> {
+    let mut net = QuadFormerNet::new(&NetConfig::default(), 100, 6, 0)?;
+    net.freeze()?;
+    let mut engine = StreamingNet::new(&net)?;
+    let mut state = 0x9e37_79b9_u32;
+    let mut times = Vec::with_capacity(STREAM_DECISIONS);
+    for k in 0..STREAM_DECISIONS {
+        let x: Vec<f32> = (0..6)
+            .map(|_| {
+                state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                (state >> 8) as f32 / (1u32 << 23) as f32 - 1.0
+            })
+            .collect();
+        let t0 = Instant::now();
+        engine.push(&x, with_tcd)?;
+        if k >= 100 {
+            times.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    println!(
+        "streaming decision ({}): median {:.3} ms, fastest {:.3} ms over {} decisions",
+        if with_tcd { "with the TCD" } else { "without the TCD" },
+        times[times.len() / 2],
+        times[0],
+        times.len()
+    );
+    Ok(())
 }
 
 fn forward() -> Result<(), Box<dyn std::error::Error>> {
