@@ -103,21 +103,37 @@ pub(crate) fn softmax_row(row: &mut [f32]) {
     }
 }
 
-/// Softmax `c` of one row of scores `s`, in place, returning `Σⱼ cⱼ ln cⱼ` from the scores,
-/// `Σⱼ cⱼ (sⱼ − max s) − ln Σⱼ exp(sⱼ − max s)`, without a logarithm per entry. `shifted` (the
-/// row's length) is scratch.
+/// Softmax of every row (`len` values) of `map`, in place: [`softmax_row`] of each row, with
+/// the exponentials taken over [`vmath::row_block`] rows at a time, so that no row leaves a
+/// remainder to scalar code. With `entropy`, `(ent, shifted)`, also writes each row's
+/// `Σⱼ cⱼ ln cⱼ = Σⱼ cⱼ (sⱼ − max s) − ln Σⱼ exp(sⱼ − max s)` to `ent`, without a logarithm per
+/// entry; `shifted` (a block's size) is scratch.
 #[inline(always)]
-pub(crate) fn softmax_row_entropy(row: &mut [f32], shifted: &mut [f32]) -> f32 {
-    let max = vmath::max(row);
-    for (y, t) in row.iter_mut().zip(shifted.iter_mut()) {
-        *t = *y - max;
-        *y = vmath::exp(*t);
+pub(crate) fn softmax_rows(map: &mut [f32], len: usize, mut entropy: Option<(&mut [f32], &mut [f32])>) {
+    let rows = vmath::row_block(len);
+    for (b, block) in map.chunks_mut(rows * len).enumerate() {
+        for row in block.chunks_exact_mut(len) {
+            let max = vmath::max(row);
+            for y in row.iter_mut() {
+                *y -= max;
+            }
+        }
+        if let Some((_, shifted)) = entropy.as_mut() {
+            shifted[..block.len()].copy_from_slice(block);
+        }
+        for y in block.iter_mut() {
+            *y = vmath::exp(*y);
+        }
+        for (r, row) in block.chunks_exact_mut(len).enumerate() {
+            let sum = vmath::sum(row);
+            for y in row.iter_mut() {
+                *y /= sum;
+            }
+            if let Some((ent, shifted)) = entropy.as_mut() {
+                ent[b * rows + r] = vmath::dot(row, &shifted[r * len..(r + 1) * len]) - vmath::ln(sum);
+            }
+        }
     }
-    let sum = vmath::sum(row);
-    for y in row.iter_mut() {
-        *y /= sum;
-    }
-    vmath::dot(row, shifted) - vmath::ln(sum)
 }
 
 /// Replaces a row by `x − μ` and returns `1/σ`, `σ = √(var + eps)`.
@@ -455,6 +471,25 @@ mod tests {
         let var = xc.sqr().unwrap().mean_keepdim(D::Minus1).unwrap();
         let xn = xc.broadcast_div(&(var + eps).unwrap().sqrt().unwrap()).unwrap();
         xn.broadcast_mul(gain).unwrap().broadcast_add(bias).unwrap()
+    }
+
+    /// Softmax by blocks of rows gives the bits of [`softmax_row`], also for a last block of
+    /// fewer rows, and each row's `Σ c ln c`.
+    #[test]
+    fn softmax_by_blocks_matches_the_row_kernel() {
+        let (len, rows) = (12, 5);
+        let scores: Vec<f32> = (0..len * rows).map(|i| ((i * 37) % 23) as f32 * 1.7 - 20.0).collect();
+        let mut by_rows = scores.clone();
+        for row in by_rows.chunks_exact_mut(len) {
+            softmax_row(row);
+        }
+        let (mut by_blocks, mut ent, mut shifted) = (scores, vec![0f32; rows], vec![0f32; 2 * len]);
+        softmax_rows(&mut by_blocks, len, Some((&mut ent, &mut shifted)));
+        assert_eq!(by_blocks, by_rows);
+        for (row, e) in by_rows.chunks_exact(len).zip(&ent) {
+            let direct: f32 = row.iter().filter(|&&c| c > 0.0).map(|&c| c * c.ln()).sum();
+            assert!((e - direct).abs() < 1e-5, "{e} vs {direct}");
+        }
     }
 
     #[test]

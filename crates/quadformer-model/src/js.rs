@@ -90,17 +90,17 @@ pub(crate) fn js_row(p: &[f32], ln_p: &[f32], q: &[f32], terms: &mut [f32]) -> f
     0.5 * vmath::sum(terms)
 }
 
-/// `Σⱼ mⱼ ln(mⱼ + ε)` of the mixture `m = (p + q)/2` of two rows, with `terms` as scratch and
-/// the logarithm [`vmath::ln_fast`]. With the rows' own `Σ pⱼ ln(pⱼ + ε)` and `Σ qⱼ ln qⱼ` it
-/// gives `JS(p, q) = ½ (Σ p ln p + Σ q ln q) − Σ m ln m`: one logarithm per entry where
-/// [`js_row`] takes two. The streaming engine computes the TCD so ([`crate::streaming`]).
+/// `mⱼ ln(mⱼ + ε)` of every entry of the mixture `m = (p + q)/2` of two maps, into `terms`,
+/// with the logarithm [`vmath::ln_fast`]. With the rows' own `Σ pⱼ ln(pⱼ + ε)` and
+/// `Σ qⱼ ln qⱼ` a row's sum gives `JS(p, q) = ½ (Σ p ln p + Σ q ln q) − Σ m ln m`: one
+/// logarithm per entry where [`js_row`] takes two. The streaming engine computes the TCD so
+/// ([`crate::streaming`]), over whole maps, so that no row leaves a remainder to scalar code.
 #[inline(always)]
-pub(crate) fn mixture_entropy_row(p: &[f32], q: &[f32], terms: &mut [f32]) -> f32 {
+pub(crate) fn mixture_entropy_terms(p: &[f32], q: &[f32], terms: &mut [f32]) {
     for ((t, &pj), &qj) in terms.iter_mut().zip(p).zip(q) {
         let m = 0.5 * (pj + qj);
         *t = m * vmath::ln_fast(m + JS_EPS);
     }
-    vmath::sum(terms)
 }
 
 /// `ln(xⱼ + ε)` of every element.
@@ -316,11 +316,12 @@ mod tests {
             scores in proptest::collection::vec(-30f32..30.0, 40),
         ) {
             let p = distributions(&raw_p, &[40]).to_vec1::<f32>().unwrap();
-            let (mut q, mut scratch) = (scores.clone(), vec![0f32; 40]);
-            let ent_q = crate::fused::softmax_row_entropy(&mut q, &mut scratch);
+            let (mut q, mut scratch, mut ent_q) = (scores.clone(), vec![0f32; 40], [0f32]);
+            crate::fused::softmax_rows(&mut q, 40, Some((&mut ent_q, &mut scratch)));
             let ln_p = ln_eps(&p);
             let ent_p = vmath::dot(&p, &ln_p);
-            let entropy_form = 0.5 * (ent_p + ent_q) - mixture_entropy_row(&p, &q, &mut scratch);
+            mixture_entropy_terms(&p, &q, &mut scratch);
+            let entropy_form = 0.5 * (ent_p + ent_q[0]) - vmath::sum(&scratch);
             let direct = js_row(&p, &ln_p, &q, &mut scratch);
             prop_assert!((entropy_form - direct).abs() < 40.0 * JS_EPS + 2e-6, "{entropy_form} vs {direct}");
             prop_assert!((-1e-6..=std::f32::consts::LN_2 + 1e-6).contains(&entropy_form));

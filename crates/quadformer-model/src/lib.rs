@@ -19,6 +19,7 @@
 //!   [`OnlineQuadFormer`];
 //! - [`streaming`]: [`streaming::StreamingNet`], the frozen network outside candle that the
 //!   streaming detector runs (layer 1 reused across windows, the last layer on the newest step,
+//!   attention scores refactored to fewer multiply-adds, the TCD with one logarithm per entry,
 //!   products through the bounds-checked [`matmul`] into buffers allocated once);
 //! - [`checkpoint`]: safetensors weights + versioned JSON manifest with integrity checks.
 //!

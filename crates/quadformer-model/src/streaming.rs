@@ -55,8 +55,8 @@
 use candle_core::Tensor;
 
 use crate::error::{ModelError, Result};
-use crate::fused::{add_bias_row, gelu_value, layer_norm_row, softmax_row, softmax_row_entropy};
-use crate::js::mixture_entropy_row;
+use crate::fused::{add_bias_row, gelu_value, layer_norm_row, softmax_rows};
+use crate::js::mixture_entropy_terms;
 use crate::layers::LN_EPS;
 use crate::matmul::{MatMut, MatRef, matmul};
 use crate::model::{ClassInput, PRIOR_EXP_FLOOR, Prior, QuadFormerNet};
@@ -262,6 +262,7 @@ struct Scratch {
     class: Vec<f32>,
     logit: Vec<f32>,
     tcd: Vec<f32>,
+    /// Scratch of a block of rows of a map ([`vmath::row_block`]).
     terms: Vec<f32>,
 }
 
@@ -274,19 +275,19 @@ pub struct StreamingNet {
     heads: usize,
     dcm: bool,
     class_input: ClassInput,
-    /// `[W_e | W_e W_Q¹ | W_e W_K¹ | W_e W_V¹]`, `m × 4d` (`W_V¹` as held by its layer, with
-    /// `W_O¹` folded in for one head).
+    /// Residue part of a ring row per residue channel, `m × w_ring` ([`layer_one_parts`]:
+    /// `[W_e | W_e W_Q¹ | W_e W_K¹ | W_e W_V¹]` with `W_V¹` as held by its layer, then the
+    /// parts of [`Scores::RingKeys`] and [`Scores::LowRank`] when used).
     w_in: Vec<f32>,
-    /// `(b_e + PEᵢ)[I | W_Q¹ | W_K¹ | W_V¹] + [0 | b_Q¹ | b_K¹ | b_V¹]`, `l × 4d`.
+    /// Position part of a ring row per step, `l × w_ring`.
     p_in: Vec<f32>,
-    /// Width of a row of the ring, `w_in` and `p_in`: `4d`, and `d + 1` more with
-    /// [`Scores::RingKeys`].
+    /// Width of a row of the ring, `w_in`, `p_in` and `x0`.
     w_ring: usize,
     layers: Vec<LayerW>,
     recon: Linear,
     class1: Linear,
     class2: Linear,
-    /// Residue parts of the window, `l` slots of `4d`; slot `start` holds the oldest step.
+    /// Residue parts of the window, `l` slots of `w_ring`; slot `start` holds the oldest step.
     ring: Vec<f32>,
     start: usize,
     n_seen: usize,
@@ -388,7 +389,7 @@ impl StreamingNet {
             class: zeros(cfg.d_class),
             logit: zeros(1),
             tcd: zeros(l),
-            terms: zeros(l),
+            terms: zeros(vmath::row_block(l) * l),
         };
         Ok(Self {
             l,
@@ -578,16 +579,8 @@ impl StreamingNet {
                 }
             }
             // Attention `C = softmax(S)`, with `Σ C ln C` of every row for the TCD.
-            let maps = &mut attn[..heads * q_rows * l];
-            if with_tcd {
-                for (row, e) in maps.chunks_exact_mut(l).zip(&mut s.ent_attn[idx]) {
-                    *e = softmax_row_entropy(row, &mut s.terms);
-                }
-            } else {
-                for row in maps.chunks_exact_mut(l) {
-                    softmax_row(row);
-                }
-            }
+            let entropy = with_tcd.then_some((&mut s.ent_attn[idx][..], &mut s.terms[..]));
+            softmax_rows(&mut attn[..heads * q_rows * l], l, entropy);
             // Attention output of the `out_rows` newest rows, heads side by side.
             let c_out = |hd: usize| -> Result<MatRef<'_>> {
                 MatRef::rows(&attn[(hd * q_rows + q_rows - out_rows) * l..(hd + 1) * q_rows * l], out_rows, l)
@@ -698,15 +691,17 @@ impl StreamingNet {
                 LayerPrior::Tpc { t, ent } => (&t[..], &ent[..]),
                 LayerPrior::Gaussian { .. } => (&s.prior[idx][..], &s.ent_prior[idx][..]),
             };
-            let ent_c = &s.ent_attn[idx];
-            for i in 0..l {
-                let mut js = 0.0;
-                for hd in 0..heads {
-                    let (row, r) = (hd * l + i, (hd * l + i) * l..(hd * l + i + 1) * l);
-                    js += 0.5 * (ent_t[row] + ent_c[row])
-                        - mixture_entropy_row(&t[r.clone()], &s.attn[idx][r], &mut s.terms);
+            // Rows `hd·l + i`, a block at a time (vmath::row_block).
+            let (n, block) = (heads * l * l, vmath::row_block(l) * l);
+            let blocks = t[..n].chunks(block).zip(s.attn[idx][..n].chunks(block));
+            for (b, (t_block, c_block)) in blocks.enumerate() {
+                let terms = &mut s.terms[..t_block.len()];
+                mixture_entropy_terms(t_block, c_block, terms);
+                for (r, row_terms) in terms.chunks_exact(l).enumerate() {
+                    let row = b * block / l + r;
+                    let js = 0.5 * (ent_t[row] + s.ent_attn[idx][row]) - vmath::sum(row_terms);
+                    s.tcd[row % l] += js / heads as f32;
                 }
-                s.tcd[i] += js / heads as f32;
             }
         }
         let n = self.layers.len() as f32;
@@ -794,7 +789,7 @@ fn layer_one_parts(
 /// `σ = 3^(sigmoid(5s) + 10⁻⁵) − 1`, `Tᵢⱼ ∝ exp(−|j − i|²/(2σᵢ²))` (exponent clamped at
 /// [`PRIOR_EXP_FLOOR`]), as [`QuadFormerNet`] builds it: the softmax of the exponents, whose
 /// maximum is 0. `t` is `heads × l × l`, `ent` (`heads × l`) the `Σⱼ Tᵢⱼ ln Tᵢⱼ` of its rows;
-/// `shifted` (`l` values) is scratch.
+/// `shifted` (a block of rows, [`vmath::row_block`]) is scratch.
 #[inline(always)]
 fn gaussian_prior(s: &[f32], heads: usize, l: usize, t: &mut [f32], ent: &mut [f32], shifted: &mut [f32]) {
     let floor = PRIOR_EXP_FLOOR as f32;
@@ -808,9 +803,9 @@ fn gaussian_prior(s: &[f32], heads: usize, l: usize, t: &mut [f32], ent: &mut [f
                 let dist = j as f32 - i as f32;
                 *v = (-(dist * dist) / two_var).clamp(floor, 0.0);
             }
-            ent[hd * l + i] = softmax_row_entropy(row, shifted);
         }
     }
+    softmax_rows(&mut t[..heads * l * l], l, Some((ent, shifted)));
 }
 
 #[cfg(test)]
