@@ -4,7 +4,7 @@
 //!
 //! It computes what [`QuadFormerNet::forward_steps`] with [`Steps::Last`] computes, from the
 //! same weights, in plain `f32` buffers ([`crate::matmul`], the element-wise kernels of
-//! [`crate::fused`] and [`crate::js`]), and does less work in five ways, exact but for rounding:
+//! [`crate::fused`] and [`crate::js`]), and does less work in seven ways, exact but for rounding:
 //!
 //! 1. **Layer 1 is linear in each residue.** Its input is `h⁰ᵢ = xᵢ W_e + b_e + PEᵢ` and its
 //!    projections `Q¹ᵢ = h⁰ᵢ W_Q + b_Q` (likewise `K¹`, `V¹`), so each splits into a part of
@@ -26,7 +26,8 @@
 //!    attention's comes from its scores, `Σ C ln C = Σ C (s − max s) − ln Σ exp(s − max s)`, as
 //!    the softmax forms `C`. Only `ln(M + ε)` is taken per entry, from [`vmath::ln_fast`]
 //!    (within 1.4 units in the last place, against 0.7 for [`vmath::ln`], at four fifths of its
-//!    cost).
+//!    cost). The softmax and these terms run over blocks of rows that fill whole vectors
+//!    ([`vmath::row_block`]), so no row leaves a remainder to scalar code.
 //! 6. **With DCM and one head, no layer after the first forms queries and keys.** Layer `h`
 //!    scores its queries against the keys of layer `h − 1`, `Kʰ⁻¹ = H' W'_K + b'_K` with `H'`
 //!    that layer's input, so `Q Kʰ⁻¹ᵀ = (H W_Q + b_Q)(W'_K H'ᵀ + b'_Kᵀ)`. Terms constant along a
@@ -44,9 +45,9 @@
 //!    when `2m` is below a head's width (12 against 64 by default).
 //!
 //! The results equal the candle forward pass up to `f32` rounding: sums are reassociated,
-//! logarithms differ in the last place, and the attention's `Σ C ln C` (and a Gaussian prior's)
-//! has no guard `ε` where [`crate::js`] takes `Σ C ln(C + ε)`, which moves a step's TCD by at most `l ε` (10⁻⁶ for
-//! `l` = 100). The tests bound the difference. The TPC priors are frozen at construction; the
+//! logarithms differ in the last place, and the attention's `Σ C ln C` (and a Gaussian
+//! prior's) has no guard `ε` where [`crate::js`] takes `Σ C ln(C + ε)`, which moves a step's
+//! TCD by at most `l ε` (10⁻⁶ for `l` = 100). The tests bound the difference. The TPC priors are frozen at construction; the
 //! Gaussian prior of the "TPC off" ablation depends on the input and is rebuilt per window.
 //!
 //! Until `l` residues have been seen the window is padded at the front with the first one, as
