@@ -515,7 +515,8 @@ impl StreamingNet {
             } else if keys_for_next {
                 layer.w_k.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.k, l)?;
             }
-            // Scores `Q Kᵀ/√d` per head (eq:first_layer_attention, eq:cross_layer_attention).
+            // Scores `Q Kᵀ/√d` per head (eq:first_layer_attention, eq:cross_layer_attention), in
+            // the layer's form (`Scores`; `κ` and `β` are columns `4d..5d` and `5d` of the ring).
             let attn = &mut s.attn[idx];
             let h_q = MatRef::new(&h_in[first_q * h_rs..], q_rows, d, h_rs, 1)?;
             match &layer.scores {
