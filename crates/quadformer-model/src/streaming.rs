@@ -179,7 +179,7 @@ enum LayerPrior {
     Gaussian { sigma: Linear },
 }
 
-/// How a layer forms its attention scores `S = Q Kᵀ/√d_h` (module docs, point 6).
+/// How a layer forms its attention scores `S = Q Kᵀ/√d_h` (module docs, points 6 and 7).
 #[derive(Clone)]
 enum Scores {
     /// From the projected queries and keys: this layer's own keys, or with DCM the previous
