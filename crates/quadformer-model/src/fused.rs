@@ -90,20 +90,7 @@ pub(crate) fn add_bias_row(row: &mut [f32], bias: &[f32]) {
     }
 }
 
-/// Softmax of one row, in place.
-#[inline(always)]
-pub(crate) fn softmax_row(row: &mut [f32]) {
-    let max = vmath::max(row);
-    for y in row.iter_mut() {
-        *y = vmath::exp(*y - max);
-    }
-    let sum = vmath::sum(row);
-    for y in row.iter_mut() {
-        *y /= sum;
-    }
-}
-
-/// Softmax of every row (`len` values) of `map`, in place: [`softmax_row`] of each row, with
+/// Softmax of every row (`len` values) of `map`, in place: `cⱼ = exp(sⱼ − max s) / Σ`, with
 /// the exponentials taken over [`vmath::row_block`] rows at a time, so that no row leaves a
 /// remainder to scalar code. With `entropy`, `(ent, shifted)`, also writes each row's
 /// `Σⱼ cⱼ ln cⱼ = Σⱼ cⱼ (sⱼ − max s) − ln Σⱼ exp(sⱼ − max s)` to `ent`, without a logarithm per
@@ -308,9 +295,7 @@ impl CustomOp1 for Softmax {
         vmath::vectorized(
             #[inline(always)]
             || {
-                for row in y.chunks_exact_mut(len) {
-                    softmax_row(row);
-                }
+                softmax_rows(&mut y, len, None);
             },
         );
         Ok((CpuStorage::F32(y), l.shape().clone()))
@@ -473,15 +458,22 @@ mod tests {
         xn.broadcast_mul(gain).unwrap().broadcast_add(bias).unwrap()
     }
 
-    /// Softmax by blocks of rows gives the bits of [`softmax_row`], also for a last block of
-    /// fewer rows, and each row's `Σ c ln c`.
+    /// Softmax by blocks of rows gives the bits of the softmax of each row on its own, also for
+    /// a last block of fewer rows, and each row's `Σ c ln c`.
     #[test]
     fn softmax_by_blocks_matches_the_row_kernel() {
         let (len, rows) = (12, 5);
         let scores: Vec<f32> = (0..len * rows).map(|i| ((i * 37) % 23) as f32 * 1.7 - 20.0).collect();
         let mut by_rows = scores.clone();
         for row in by_rows.chunks_exact_mut(len) {
-            softmax_row(row);
+            let max = vmath::max(row);
+            for y in row.iter_mut() {
+                *y = vmath::exp(*y - max);
+            }
+            let sum = vmath::sum(row);
+            for y in row.iter_mut() {
+                *y /= sum;
+            }
         }
         let (mut by_blocks, mut ent, mut shifted) = (scores, vec![0f32; rows], vec![0f32; 2 * len]);
         softmax_rows(&mut by_blocks, len, Some((&mut ent, &mut shifted)));

@@ -307,6 +307,8 @@ impl StreamingNet {
         let embed = Linear::load(net, "embed")?;
         let pos = net.positional_encoding().flatten_all()?.to_vec1::<f32>()?;
         let mut tpc = net.tpc_priors()?.into_iter();
+        // The attention's scale `1/√d_h`, folded into the weights of the refactored scores.
+        let scale = 1.0 / ((d / heads) as f32).sqrt();
         let mut layers: Vec<LayerW> = Vec::with_capacity(n_layers);
         for h in 0..n_layers {
             let name = |part: &str| format!("layers.{h}.{part}");
@@ -330,7 +332,6 @@ impl StreamingNet {
             let (w_v, w_o) = (Linear::load(net, &name("attn.w_v"))?, Linear::load(net, &name("attn.w_o"))?);
             let (w_v, w_o) = if heads == 1 { (w_v.then(&w_o), None) } else { (w_v, Some(w_o)) };
             let w_q = Linear::load(net, &name("attn.w_q"))?;
-            let scale = 1.0 / ((d / heads) as f32).sqrt();
             let scores = match (layers.last(), h) {
                 (Some(_), 1) if cfg.dcm && heads == 1 => Scores::RingKeys,
                 (Some(prev), _) if cfg.dcm && heads == 1 => Scores::Folded(w_q.then(&prev.w_k.transposed(scale))),
@@ -351,7 +352,7 @@ impl StreamingNet {
         }
         let first = layers.first().ok_or_else(|| ModelError::Data { msg: "the network has no layers".into() })?;
         let key_map = match layers.get(1) {
-            Some(LayerW { scores: Scores::RingKeys, w_q, .. }) => Some(w_q.key_map(1.0 / (d as f32).sqrt())),
+            Some(LayerW { scores: Scores::RingKeys, w_q, .. }) => Some(w_q.key_map(scale)),
             _ => None,
         };
         // Layer 1's scores in the residues' rank when that is below a head's width (point 7).
