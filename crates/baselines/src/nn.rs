@@ -57,6 +57,10 @@ pub struct NeuralConfig {
     pub hidden: usize,
     /// CNN kernel size (unused by the LSTM). Default 5 (rust-stack.md §3 probe).
     pub kernel: usize,
+    /// Weight of attacked steps in the BCE (class imbalance), as QUADFormer's
+    /// `loss.pos_weight`. Default 1.
+    #[serde(default = "one")]
+    pub pos_weight: f64,
     /// Seed of the initial weights. Default 0.
     pub seed: u64,
 }
@@ -74,11 +78,19 @@ pub struct LstmConfig(pub NeuralConfig);
 impl Default for CnnConfig {
     fn default() -> Self {
         Self(NeuralConfig {
-            window: WindowConfig::default(),
+            window: WindowConfig { stride: 20, ..WindowConfig::default() },
             score_stride: 50,
-            train: TrainConfig { epochs: 30, lr: 3e-3, lr_decay: 1.0, patience: 4, ..TrainConfig::default() },
+            train: TrainConfig {
+                epochs: 30,
+                lr: 3e-3,
+                lr_decay: 1.0,
+                patience: 4,
+                mirror: true,
+                ..TrainConfig::default()
+            },
             hidden: 32,
             kernel: 5,
+            pos_weight: 1.0,
             seed: 0,
         })
     }
@@ -88,6 +100,10 @@ impl Default for LstmConfig {
     fn default() -> Self {
         Self(NeuralConfig { hidden: 64, ..CnnConfig::default().0 })
     }
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// A network that maps normalised windows `b × l × m` to per-step logits `b × l`.
@@ -162,6 +178,8 @@ pub struct NeuralDetector<N> {
     window: WindowConfig,
     score_stride: usize,
     threshold: f64,
+    /// Threshold of the streaming scores, chosen on validation.
+    stream_threshold: f64,
     report: quadformer_model::TrainReport,
 }
 
@@ -199,19 +217,52 @@ impl<N: PerStepNet> NeuralDetector<N> {
         }
         Ok(sw.stitch(&logits)?)
     }
+
+    /// The streaming logits: step `k` scored at the last position of the window that ends at
+    /// `k`, front-padded for `k < l − 1` as [`ekf_residue::WindowedOnline`] pads, so exactly
+    /// what [`Detector::online`] gives, computed in batches.
+    fn score_streaming_inner(&self, series: &ResidueSeries) -> Result<Vec<f64>> {
+        let (l, n) = (self.window.len, series.len());
+        let mut windows = Windows::empty(l, self.norm.dim());
+        for k in 0..n.min(l - 1) {
+            windows.push_series(&series.slice(0..k + 1)?, None, &self.norm, l)?;
+        }
+        if n >= l {
+            windows.push_series(series, None, &self.norm, 1)?;
+        }
+        let mut out = Vec::with_capacity(windows.len());
+        let idx: Vec<usize> = (0..windows.len()).collect();
+        for chunk in idx.chunks(SCORE_BATCH) {
+            let batch = windows.batch(chunk, &Device::Cpu)?;
+            let z = self.net.logits(&batch.x).map_err(candle_err("streaming scoring"))?;
+            let z = z.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(candle_err("streaming scoring"))?;
+            out.extend(z.chunks_exact(l).map(|w| f64::from(w[l - 1])));
+        }
+        Ok(out)
+    }
+}
+
+/// A fitted network's error as the [`Detector`] interface reports it.
+fn into_detect_error(e: BaselineError) -> DetectError {
+    match e {
+        BaselineError::Detect(d) => d,
+        BaselineError::Model(m) => m.into(),
+        other => DetectError::Backend(other.to_string()),
+    }
 }
 
 fn candle_err(context: &'static str) -> impl Fn(candle_core::Error) -> BaselineError {
     move |e| BaselineError::Candle { context, msg: e.to_string() }
 }
 
-/// Adapter from a [`PerStepNet`] to the shared training loop: masked per-step BCE.
-struct Trainable<'a, N>(&'a N);
+/// Adapter from a [`PerStepNet`] to the shared training loop: masked per-step BCE with the
+/// positive-class weight.
+struct Trainable<'a, N>(&'a N, f64);
 
 impl<N: PerStepNet> TrainableModel for Trainable<'_, N> {
     fn loss(&self, batch: &Batch, _phase: usize) -> candle_core::Result<Tensor> {
         let z = self.0.logits(&batch.x)?;
-        masked_bce_with_logits(&z, &batch.y, &batch.mask, batch.n_labelled)
+        masked_bce_with_logits(&z, &batch.y, &batch.mask, batch.n_labelled, self.1)
     }
 }
 
@@ -244,18 +295,18 @@ fn fit_neural<N: PerStepNet>(
     }
     let channels = fit_channels(train_split, valid)?;
     let labelled = labelled_only(train_split)?;
-    let norm = Normaliser::fit(&labelled)?;
+    let norm = Normaliser::fit(&labelled, cfg.window.features)?;
     let windows = Windows::from_split(&labelled, &norm, &cfg.window)?;
     let pairs = labelled_valid(valid)?;
     let valid_labelled = labelled_only(valid)?;
     let valid_windows =
-        Windows::from_split(&valid_labelled, &norm, &WindowConfig { len: cfg.window.len, stride: cfg.window.len })?;
+        Windows::from_split(&valid_labelled, &norm, &WindowConfig { stride: cfg.window.len, ..cfg.window })?;
 
     let varmap = VarMap::new();
     let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
-    let net = build(channels.len(), vb).map_err(candle_err("building the network"))?;
+    let net = build(norm.dim(), vb).map_err(candle_err("building the network"))?;
     init_vars_seeded(&varmap, cfg.seed)?;
-    let model = Trainable(&net);
+    let model = Trainable(&net, cfg.pos_weight);
     // Early stopping on the validation BCE (lower is better).
     let mut valid_loss = |m: &Trainable<'_, N>| -> quadformer_model::Result<f64> {
         let idx: Vec<usize> = (0..valid_windows.len()).collect();
@@ -278,11 +329,15 @@ fn fit_neural<N: PerStepNet>(
         window: cfg.window,
         score_stride: cfg.score_stride,
         threshold: 0.0,
+        stream_threshold: 0.0,
         report,
     };
     let scores = pairs.iter().map(|(s, _)| det.score_inner(s)).collect::<Result<Vec<_>>>()?;
     det.threshold =
         ekf_residue::best_f1_threshold(scores.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)))?.0;
+    let streamed = pairs.iter().map(|(s, _)| det.score_streaming_inner(s)).collect::<Result<Vec<_>>>()?;
+    det.stream_threshold =
+        ekf_residue::best_f1_threshold(streamed.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)))?.0;
     Ok(det)
 }
 
@@ -317,15 +372,20 @@ impl<N: PerStepNet> Detector for NeuralDetector<N> {
 
     fn score(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
         ekf_residue::check_channels(&self.channels, series)?;
-        self.score_inner(series).map_err(|e| match e {
-            BaselineError::Detect(d) => d,
-            BaselineError::Model(m) => m.into(),
-            other => DetectError::Backend(other.to_string()),
-        })
+        self.score_inner(series).map_err(into_detect_error)
     }
 
     fn threshold(&self) -> f64 {
         self.threshold
+    }
+
+    fn streaming_threshold(&self) -> f64 {
+        self.stream_threshold
+    }
+
+    fn score_streaming(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
+        ekf_residue::check_channels(&self.channels, series)?;
+        self.score_streaming_inner(series).map_err(into_detect_error)
     }
 
     /// Streaming re-scores the last `l` steps as one window (the batch score averages the

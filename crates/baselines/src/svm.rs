@@ -298,6 +298,12 @@ impl Detector for Svm {
         self.threshold
     }
 
+    /// The batch scores are causal already (features of the last `w` steps), so they are the
+    /// streaming scores.
+    fn score_streaming(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
+        self.score(series)
+    }
+
     /// The features of a step use the last `w` steps only, so the default windowed online
     /// detector over `w` steps is exact.
     fn online_window(&self) -> usize {

@@ -74,7 +74,7 @@ fn svm_flags_a_gross_gps_bias() -> TestResult {
 
 /// A small, fast network configuration for tests: 20-step windows, 8 epochs.
 fn small(mut cfg: NeuralConfig) -> NeuralConfig {
-    cfg.window = WindowConfig { len: 20, stride: 5 };
+    cfg.window = WindowConfig { len: 20, stride: 5, ..WindowConfig::default() };
     cfg.score_stride = 10;
     cfg.train = TrainConfig { epochs: 8, lr: 3e-3, lr_decay: 1.0, progress: false, ..TrainConfig::default() };
     cfg.hidden = 16;

@@ -37,6 +37,26 @@ pub trait Detector: Send + Sync {
         Ok(self.score(series)?.into_iter().map(|s| s > threshold).collect())
     }
 
+    /// The threshold of the streaming detector ([`Detector::online`]): a step alarms when its
+    /// streaming score is strictly above it. Detectors whose streaming score differs from the
+    /// batch one (a window that sees past and future against one that ends at the step) choose
+    /// it on the validation split's streaming scores; the default is [`Detector::threshold`].
+    fn streaming_threshold(&self) -> f64 {
+        self.threshold()
+    }
+
+    /// The scores [`Detector::online`] gives when fed every step of `series` in order from a
+    /// fresh start: step `k` scored from steps `0..=k` alone. The default runs the online
+    /// detector; detectors with a faster exact route override it.
+    ///
+    /// # Errors
+    /// As [`OnlineDetector::update`].
+    fn score_streaming(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
+        check_channels(self.channels(), series)?;
+        let mut online = self.online();
+        series.steps().map(|step| online.update(&step).map(|d| d.score)).collect()
+    }
+
     /// A streaming version of this detector for closed-loop use (`resilient-fusion`).
     ///
     /// The default re-scores a sliding window of the last [`Detector::online_window`] steps at
@@ -146,7 +166,7 @@ impl<D: Detector + ?Sized> OnlineDetector for WindowedOnline<'_, D> {
         let scores = self.detector.score(&series)?;
         let score =
             scores.last().copied().ok_or_else(|| DetectError::Numerical { what: "empty score window".into() })?;
-        Ok(OnlineDecision { score, alarm: score > self.detector.threshold() })
+        Ok(OnlineDecision { score, alarm: score > self.detector.streaming_threshold() })
     }
 
     fn reset(&mut self) {

@@ -689,6 +689,7 @@ fn write_report(
     let _ = writeln!(s, "## Tables\n");
     let _ = writeln!(s, "- [Table I (Model I)](table1.md), [LaTeX](table1.tex)");
     let _ = writeln!(s, "- [Table II (Model II)](table2.md), [LaTeX](table2.tex)");
+    let _ = writeln!(s, "- [Streaming against offline F1 of the learning methods](streaming.md)");
     let _ = writeln!(s, "- [All metrics: ROC AUC, PR AUC, detection delay, false alarms per minute](metrics.md)");
     let _ =
         writeln!(s, "- Raw: [results.csv](results.csv), [results.json](results.json), [timings.csv](timings.csv)\n");

@@ -20,12 +20,6 @@ use crate::io::write_text_atomic;
 use crate::metrics::{Evaluation, FlightOutcome, evaluate};
 use crate::table::{Cell, RunResult};
 
-/// Training epochs of QUADFormer in the full run (decision 004).
-pub const FULL_EPOCHS: usize = 4;
-
-/// Windows drawn per epoch by every learning method in the full run (decision 004).
-pub const FULL_WINDOWS_PER_EPOCH: usize = 1024;
-
 /// Largest number of ROC points kept per run for plotting.
 const ROC_POINTS_KEPT: usize = 200;
 
@@ -193,19 +187,14 @@ pub struct MethodConfigs {
 
 impl MethodConfigs {
     /// The configuration of the full run: every method's defaults, with per-epoch progress bars
-    /// off (the runner shows its own).
-    ///
-    /// Every learning method draws at most [`FULL_WINDOWS_PER_EPOCH`] random windows per epoch;
-    /// QUADFormer trains for at most [`FULL_EPOCHS`] epochs, so the full matrix fits a 2-core
-    /// machine, while the cheaper CNN and LSTM train to convergence on validation
-    /// (docs/decisions/004-training-budget.md); early stopping on validation applies to all.
+    /// off (the runner shows its own). The defaults train every learning method on every
+    /// window of its training data in every epoch until validation stops improving
+    /// (docs/decisions/004-training-budget.md).
     pub fn full() -> Self {
         let mut c = Self::default();
         for t in [&mut c.quadformer.train, &mut c.cnn.0.train, &mut c.lstm.0.train] {
             t.progress = false;
-            t.max_windows_per_epoch = Some(FULL_WINDOWS_PER_EPOCH);
         }
-        c.quadformer.train.epochs = FULL_EPOCHS;
         c
     }
 
@@ -216,6 +205,9 @@ impl MethodConfigs {
         c.quadformer = QuadFormerConfig::tiny(50);
         c.quadformer.train.epochs = 2;
         c.quadformer.train.max_windows_per_epoch = Some(256);
+        c.quadformer.train.progress = false;
+        c.quadformer.train.labelled_share = Some(0.5);
+        c.quadformer.train.mirror = true;
         for nn in [&mut c.cnn.0, &mut c.lstm.0] {
             nn.window = c.quadformer.window;
             nn.score_stride = 25;
@@ -388,6 +380,9 @@ pub fn run_record(
         n_missed: e.delays.n_missed as u64,
         false_alarms_per_min: e.false_alarms.per_minute(),
         n_test_steps: test.n_steps() as u64,
+        stream_precision: None,
+        stream_recall: None,
+        stream_f1: None,
         train_s,
         score_s: scored.score_s,
     };
@@ -421,6 +416,27 @@ pub fn evaluate_split(
         outcomes.push(FlightOutcome { t: f.series().t(), scores, alarms, labels });
     }
     evaluate(&outcomes).map_err(|source| RunError::Metrics { method, cell, source })
+}
+
+/// Scores `test` with the detector's streaming scores ([`Detector::score_streaming`]) and
+/// alarms at its streaming threshold, and evaluates them.
+///
+/// # Errors
+/// [`RunError::Score`]; as [`evaluate_split`].
+pub fn evaluate_streaming(
+    method: Method,
+    detector: &dyn Detector,
+    test: &LabelledResidues,
+    cell: Cell,
+) -> Result<Evaluation> {
+    let threshold = detector.streaming_threshold();
+    let scores = test
+        .flights()
+        .iter()
+        .map(|f| detector.score_streaming(f.series()).map_err(|source| RunError::Score { method: method.name(), source }))
+        .collect::<Result<Vec<_>>>()?;
+    let alarms: Vec<Vec<bool>> = scores.iter().map(|s| s.iter().map(|&v| v > threshold).collect()).collect();
+    evaluate_split(test, &scores, &alarms, method.name(), cell)
 }
 
 /// The cache key of a run: SHA-256 over the crate version, the dataset key, the method and its
@@ -500,6 +516,12 @@ pub fn run_one(
     };
     let mut rec = run_record(key, cell, method, seed, splits.test, &scored, fitted.train_s)?;
     rec.modes = modes;
+    if method.is_learning() {
+        let e = evaluate_streaming(method, fitted.detector.as_ref(), splits.test, cell)?;
+        rec.result.stream_precision = Some(e.precision());
+        rec.result.stream_recall = Some(e.recall());
+        rec.result.stream_f1 = Some(e.f1());
+    }
     store_cached(&path, &rec)?;
     Ok((rec, Some(fitted.detector)))
 }

@@ -366,6 +366,16 @@ pub struct RunResult {
     pub false_alarms_per_min: f64,
     /// Number of test residue steps.
     pub n_test_steps: u64,
+    /// Streaming per-step precision (each step scored by the window that ends at it, at the
+    /// streaming threshold chosen on validation); learning methods only.
+    #[serde(default)]
+    pub stream_precision: Option<f64>,
+    /// Streaming per-step recall; learning methods only.
+    #[serde(default)]
+    pub stream_recall: Option<f64>,
+    /// Streaming per-step F1; learning methods only.
+    #[serde(default)]
+    pub stream_f1: Option<f64>,
     /// Wall-clock training time in seconds (not written to `results.csv`/`results.json`).
     pub train_s: f64,
     /// Wall-clock scoring time of the test split in seconds (idem).
@@ -396,6 +406,9 @@ impl RunResult {
             ("f1", self.f1),
             ("roc_auc", self.roc_auc),
             ("pr_auc", self.pr_auc),
+            ("stream_precision", self.stream_precision.unwrap_or(0.0)),
+            ("stream_recall", self.stream_recall.unwrap_or(0.0)),
+            ("stream_f1", self.stream_f1.unwrap_or(0.0)),
         ] {
             if !(0.0..=1.0).contains(&v) {
                 return Err(bad(field, v));
@@ -456,6 +469,15 @@ pub struct ResultRow {
     pub false_alarms_per_min: f64,
     /// Number of test residue steps.
     pub n_test_steps: u64,
+    /// Streaming per-step precision (learning methods).
+    #[serde(default)]
+    pub stream_precision: Option<f64>,
+    /// Streaming per-step recall (learning methods).
+    #[serde(default)]
+    pub stream_recall: Option<f64>,
+    /// Streaming per-step F1 (learning methods).
+    #[serde(default)]
+    pub stream_f1: Option<f64>,
 }
 
 impl From<&RunResult> for ResultRow {
@@ -477,6 +499,9 @@ impl From<&RunResult> for ResultRow {
             n_missed: r.n_missed,
             false_alarms_per_min: r.false_alarms_per_min,
             n_test_steps: r.n_test_steps,
+            stream_precision: r.stream_precision,
+            stream_recall: r.stream_recall,
+            stream_f1: r.stream_f1,
         }
     }
 }
@@ -656,6 +681,8 @@ pub struct Summary {
     pub missed: (u64, u64),
     /// False alarms per minute of clean flight.
     pub false_alarms_per_min: MeanStd,
+    /// Streaming F1 (learning methods, over the seeds that have it).
+    pub stream_f1: Option<MeanStd>,
 }
 
 /// Summaries of every (cell, method) in table order.
@@ -672,7 +699,7 @@ pub fn summarise(results: &[RunResult]) -> Result<Vec<Summary>> {
         let col = |f: fn(&RunResult) -> f64| rs.iter().map(|r| f(r)).collect::<Vec<f64>>();
         let opt = |f: fn(&RunResult) -> Option<f64>| -> Result<Option<MeanStd>> {
             let v: Vec<f64> = rs.iter().filter_map(|r| f(r)).collect();
-            Ok(if v.is_empty() { None } else { Some(MeanStd::new("delay", &v)?) })
+            Ok(if v.is_empty() { None } else { Some(MeanStd::new("optional metric", &v)?) })
         };
         out.push(Summary {
             cell,
@@ -687,6 +714,7 @@ pub fn summarise(results: &[RunResult]) -> Result<Vec<Summary>> {
             delay_p90_s: opt(|r| r.delay_p90_s)?,
             missed: (rs.iter().map(|r| r.n_missed).sum(), rs.iter().map(|r| r.n_intervals).sum()),
             false_alarms_per_min: MeanStd::new("false_alarms_per_min", &col(|r| r.false_alarms_per_min))?,
+            stream_f1: opt(|r| r.stream_f1)?,
         });
     }
     Ok(out)
@@ -973,8 +1001,49 @@ pub fn metrics_markdown(results: &[RunResult]) -> Result<String> {
     Ok(s)
 }
 
-/// Writes `table1.{md,tex}`, `table2.{md,tex}`, `metrics.md`, `results.csv`, `results.json`
-/// and `timings.csv` into `out_dir` (created if missing), each atomically; returns the paths
+/// Offline against streaming F1 of the learning methods, both models, as one Markdown table:
+/// offline is the Tables I/II figure (each step scored from windows that see past and future),
+/// streaming scores each step by the window that ends at it, as `OnlineDetector` and `fuse` do.
+///
+/// # Errors
+/// As [`summarise`].
+pub fn streaming_markdown(results: &[RunResult]) -> Result<String> {
+    let summaries = summarise(results)?;
+    let mut s = String::new();
+    let _ = writeln!(s, "## Streaming against offline F1 of the learning methods\n");
+    let _ = writeln!(
+        s,
+        "Per-step F1 on the test flights, offline / streaming, mean ± sample standard deviation over \
+         seeds. Offline is the figure of Tables I and II; streaming scores every step as the newest of \
+         its window (causal, what `OnlineDetector` and `quadformer fuse` use), at a threshold chosen on \
+         the validation split's streaming scores.\n"
+    );
+    s.push_str("| Model | Method | Exp A-I | Exp A-II | Lap A-I | Lap A-II |\n|---|---|---|---|---|---|\n");
+    for model in [UavModel::I, UavModel::II] {
+        let g = grid(&summaries, model);
+        for (method, _, cols) in &g.rows {
+            if cols.iter().all(|c| c.is_none_or(|sm| sm.stream_f1.is_none())) {
+                continue;
+            }
+            let _ = write!(s, "| {} | {} |", roman(model), md_escape(method));
+            for c in cols {
+                match c.and_then(|sm| sm.stream_f1.map(|st| (sm.f1, st))) {
+                    Some((off, st)) => {
+                        let _ = write!(s, " {off} / {st} |");
+                    }
+                    None => {
+                        let _ = write!(s, " {MISSING} |");
+                    }
+                }
+            }
+            s.push('\n');
+        }
+    }
+    Ok(s)
+}
+
+/// Writes `table1.{md,tex}`, `table2.{md,tex}`, `streaming.md`, `metrics.md`, `results.csv`,
+/// `results.json` and `timings.csv` into `out_dir` (created if missing), each atomically; returns the paths
 /// in that order.
 ///
 /// # Errors
@@ -990,6 +1059,7 @@ pub fn write_outputs(out_dir: &Path, results: &[RunResult]) -> Result<Vec<PathBu
         ("table1.tex", table_latex(results, UavModel::I)?),
         ("table2.md", table_markdown(results, UavModel::II)?),
         ("table2.tex", table_latex(results, UavModel::II)?),
+        ("streaming.md", streaming_markdown(results)?),
         ("metrics.md", metrics_markdown(results)?),
         ("results.csv", results_csv(results)?),
         ("results.json", results_json(results)?),

@@ -4,7 +4,7 @@
 
 use eval::table::{
     AttackModel, NoiseModel, RunResult, TableError, UavModel, metrics_markdown, read_results_csv, read_results_json,
-    results_csv, results_json, table_latex, table_markdown, write_outputs,
+    results_csv, results_json, streaming_markdown, table_latex, table_markdown, write_outputs,
 };
 use expect_test::expect;
 
@@ -26,6 +26,9 @@ fn run(model: UavModel, noise: NoiseModel, attack: AttackModel, method: &str, se
         n_missed: if method == "CUSUM" { 4 } else { 1 },
         false_alarms_per_min: 0.25,
         n_test_steps: 1000,
+        stream_precision: (method == "QUADFormer").then_some(f1 - 0.09),
+        stream_recall: (method == "QUADFormer").then_some(f1 - 0.11),
+        stream_f1: (method == "QUADFormer").then_some(f1 - 0.1),
         train_s: 1.0 + seed as f64,
         score_s: 0.1,
     }
@@ -172,6 +175,7 @@ fn metrics_and_csv_snapshot() {
         | Model II, exponential noise, Attack II | QUADFormer | 0.90 | 0.80 | 0.60 | 1.50 | 1 / 4 | 0.25 |
     "#]]
     .assert_eq(&metrics_markdown(&sample()).unwrap());
+    expect![[r#""#]].assert_eq(&streaming_markdown(&sample()).unwrap());
     expect![[r#"
         model,noise,attack,method,seed,precision,recall,f1,roc_auc,pr_auc,delay_median_s,delay_p90_s,n_intervals,n_missed,false_alarms_per_min,n_test_steps
         I,exponential,I,CUSUM,1,0.61,0.59,0.6,0.9,0.8,,,4,4,0.25,1000

@@ -43,6 +43,10 @@ pub struct Manifest {
     pub crit_scale: f64,
     /// Every mode's validation result.
     pub mode_results: Vec<ModeResult>,
+    /// Threshold of the streaming detector, chosen on the validation split's streaming scores;
+    /// a manifest without it streams at `chosen.threshold`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stream_threshold: Option<f64>,
     /// File name of the weights, relative to the manifest.
     pub weights_file: String,
     /// Size of the weights file in bytes.
@@ -91,6 +95,7 @@ impl QuadFormerDetector {
             chosen: self.chosen,
             crit_scale: self.crit_scale,
             mode_results: self.mode_results.clone(),
+            stream_threshold: Some(self.stream_threshold),
             weights_file: weights.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
             weights_bytes: bytes.len() as u64,
             weights_sha256: sha256_hex(&bytes),
@@ -137,8 +142,11 @@ impl QuadFormerDetector {
         let st = safetensors::SafeTensors::deserialize(&bytes)
             .map_err(|e| ck(&weights, format!("not a safetensors file: {e}")))?;
         let dim = manifest.normaliser.dim();
-        if manifest.normaliser.mean.len() != dim || manifest.normaliser.std.len() != dim {
-            return Err(ck(path, "normaliser has inconsistent channel counts"));
+        manifest.normaliser.check().map_err(|e| ck(path, e.to_string()))?;
+        if let Some(t) = manifest.stream_threshold
+            && !t.is_finite()
+        {
+            return Err(ck(path, format!("stream_threshold must be finite, got {t}")));
         }
         let mut net = QuadFormerNet::new(&manifest.config.net, manifest.config.window.len, dim, 0)?;
         {
@@ -172,6 +180,7 @@ impl QuadFormerDetector {
             norm: manifest.normaliser,
             chosen: manifest.chosen,
             crit_scale: manifest.crit_scale,
+            stream_threshold: manifest.stream_threshold.unwrap_or(manifest.chosen.threshold),
             mode_results: manifest.mode_results,
             report: None,
         })

@@ -91,7 +91,7 @@ impl Default for ScoreConfig {
 }
 
 /// Everything needed to train a QUADFormer detector ([`Fit`]).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct QuadFormerConfig {
     /// Window length and training stride.
@@ -106,12 +106,36 @@ pub struct QuadFormerConfig {
     pub score: ScoreConfig,
 }
 
+impl Default for QuadFormerConfig {
+    /// The configuration chosen on validation (docs/decisions/004-training-budget.md and
+    /// 044-whitened-inputs.md): windows of 100 whitened steps every 20 steps, every window in
+    /// every epoch with half of each epoch's windows drawn from labelled flights, each window
+    /// mirrored with probability ½, up to 12 epochs at a learning rate that falls by 0.85 per
+    /// epoch, stopped after 3 epochs without a better validation F1.
+    fn default() -> Self {
+        Self {
+            window: WindowConfig { stride: 20, ..WindowConfig::default() },
+            net: NetConfig::default(),
+            loss: LossConfig::default(),
+            train: TrainConfig {
+                epochs: 12,
+                lr_decay: 0.85,
+                patience: 3,
+                labelled_share: Some(0.5),
+                mirror: true,
+                ..TrainConfig::default()
+            },
+            score: ScoreConfig::default(),
+        }
+    }
+}
+
 impl QuadFormerConfig {
     /// A small configuration for tests and quick runs: `l` = `len`, `d_model` 16, 2 layers.
     pub fn tiny(len: usize) -> Self {
         let stride = (len / 4).max(1);
         Self {
-            window: WindowConfig { len, stride },
+            window: WindowConfig { len, stride, ..WindowConfig::default() },
             net: NetConfig { d_model: 16, n_layers: 2, d_ff: 32, d_class: 16, ..NetConfig::default() },
             train: TrainConfig { progress: false, ..TrainConfig::default() },
             score: ScoreConfig { stride, ..ScoreConfig::default() },
@@ -128,7 +152,7 @@ impl QuadFormerConfig {
         self.net.check()?;
         self.train.check()?;
         let l = &self.loss;
-        for (field, v) in [("loss.lambda", l.lambda), ("loss.alpha1", l.alpha1), ("loss.alpha2", l.alpha2)] {
+        for (field, v) in [("loss.lambda", l.lambda), ("loss.alpha1", l.alpha1), ("loss.alpha2", l.alpha2), ("loss.pos_weight", l.pos_weight)] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(ModelError::Config { field, msg: format!("must be finite and non-negative, got {v}") });
             }
@@ -275,6 +299,8 @@ pub struct QuadFormerDetector {
     pub(crate) norm: Normaliser,
     pub(crate) chosen: ModeResult,
     pub(crate) crit_scale: f64,
+    /// Threshold of the streaming scores of the chosen mode, chosen on validation.
+    pub(crate) stream_threshold: f64,
     pub(crate) mode_results: Vec<ModeResult>,
     pub(crate) report: Option<TrainReport>,
 }
@@ -310,7 +336,7 @@ impl Fit for QuadFormerConfig {
                 msg: "the validation split needs labelled flights with attacks to choose the mode and threshold".into(),
             });
         }
-        let norm = Normaliser::fit(train_split)?;
+        let norm = Normaliser::fit(train_split, self.window.features)?;
         let windows = Windows::from_split(train_split, &norm, &self.window)?;
         let mut net = QuadFormerNet::new(&self.net, self.window.len, norm.dim(), self.train.seed)?;
         let report = {
@@ -325,16 +351,23 @@ impl Fit for QuadFormerConfig {
         net.freeze()?;
         let cal = calibrate(&net, &norm, &self.score, valid)?;
         let chosen = chosen(&cal.results, self.score.mode)?;
-        Ok(QuadFormerDetector {
+        let mut det = QuadFormerDetector {
             config: self.clone(),
             streaming: StreamingNet::new(&net)?,
             net,
             norm,
             chosen,
             crit_scale: cal.crit_scale,
+            stream_threshold: chosen.threshold,
             mode_results: cal.results,
             report: Some(report),
-        })
+        };
+        let streamed = valid
+            .labelled()
+            .map(|(series, labels)| Ok((det.score_streaming(series)?, labels)))
+            .collect::<Result<Vec<_>>>()?;
+        det.stream_threshold = best_f1_threshold(streamed.iter().map(|(s, l)| (s.as_slice(), *l)))?.0;
+        Ok(det)
     }
 }
 
@@ -357,6 +390,13 @@ impl QuadFormerDetector {
     /// The scoring mode in use, its threshold and validation F1.
     pub fn chosen(&self) -> ModeResult {
         self.chosen
+    }
+
+    /// The threshold of the streaming detector, chosen on the validation split's streaming
+    /// scores of the chosen mode (a window that ends at the step sees no future, so its scores
+    /// are distributed differently from the batch scores).
+    pub fn stream_threshold(&self) -> f64 {
+        self.stream_threshold
     }
 
     /// Every mode's validation threshold and F1 (ablation table).
@@ -408,6 +448,10 @@ impl Detector for QuadFormerDetector {
 
     fn threshold(&self) -> f64 {
         self.chosen.threshold
+    }
+
+    fn streaming_threshold(&self) -> f64 {
+        self.stream_threshold
     }
 
     fn online(&self) -> Box<dyn OnlineDetector + '_> {
@@ -466,19 +510,19 @@ fn last_of_softmax(v: &[f32], k: f64) -> f64 {
 
 impl OnlineDetector for OnlineQuadFormer<'_> {
     fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
-        let (m, k) = (self.det.net.dim(), self.net.n_seen());
+        let (m, k) = (self.det.norm.channels.len(), self.net.n_seen());
         if step.dim() != m {
             return Err(ResidueError::StepDim { step_idx: k, what: "r_k", expected: m, got: step.dim() }.into());
         }
         if step.r_k.iter().any(|v| !v.is_finite()) {
             return Err(ResidueError::NonFinite { step_idx: k, what: "r_k" }.into());
         }
-        self.det.norm.apply(step.r_k, &mut self.x);
+        self.det.norm.apply(step, &mut self.x);
         let score = self.score_newest()?;
         if !score.is_finite() {
             return Err(DetectError::Numerical { what: format!("non-finite QUADFormer score at step {k}") });
         }
-        Ok(OnlineDecision { score, alarm: score > self.det.chosen.threshold })
+        Ok(OnlineDecision { score, alarm: score > self.det.stream_threshold })
     }
 
     fn reset(&mut self) {

@@ -45,13 +45,13 @@
 //! use candle_core::{DType, Device, Module, Tensor};
 //! use candle_nn::{VarBuilder, VarMap};
 //! use ekf_residue::{LabelledResidues, LabelledSeries, ResidueSeries};
-//! use quadformer_model::{init_vars_seeded, train, Batch, Normaliser, TrainConfig, TrainableModel, WindowConfig, Windows};
+//! use quadformer_model::{init_vars_seeded, train, Batch, Features, Normaliser, TrainConfig, TrainableModel, WindowConfig, Windows};
 //!
 //! struct PerStep(candle_nn::Linear);
 //! impl TrainableModel for PerStep {
 //!     fn loss(&self, batch: &Batch, _phase: usize) -> candle_core::Result<Tensor> {
 //!         let logits = self.0.forward(&batch.x)?.squeeze(2)?;
-//!         quadformer_model::model::masked_bce_with_logits(&logits, &batch.y, &batch.mask, batch.n_labelled)
+//!         quadformer_model::model::masked_bce_with_logits(&logits, &batch.y, &batch.mask, batch.n_labelled, 1.0)
 //!     }
 //! }
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -60,8 +60,8 @@
 //! let r = labels.iter().map(|&a| if a { 4.0 } else { 0.1 }).collect();
 //! let series = ResidueSeries::from_flat((0..n).map(|k| k as f64 * 0.1).collect(), vec!["gps_x".into()], r, vec![1.0; n])?;
 //! let split = LabelledResidues::new(vec![LabelledSeries::new(series, Some(labels))?])?;
-//! let norm = Normaliser::fit(&split)?;
-//! let windows = Windows::from_split(&split, &norm, &WindowConfig { len: 20, stride: 10 })?;
+//! let norm = Normaliser::fit(&split, Features::Raw)?;
+//! let windows = Windows::from_split(&split, &norm, &WindowConfig { len: 20, stride: 10, features: Features::Raw })?;
 //! let varmap = VarMap::new();
 //! let model = PerStep(candle_nn::linear(1, 1, VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?);
 //! init_vars_seeded(&varmap, 42)?;
@@ -96,4 +96,4 @@ pub use error::{ModelError, Result};
 pub use init::init_vars_seeded;
 pub use model::{ClassInput, GradFlow, LossConfig, MinMax, NetConfig, Prior, QuadFormerNet, Steps};
 pub use train::{EpochStats, TrainConfig, TrainReport, TrainableModel, train};
-pub use window::{Batch, Normaliser, SeriesWindows, WindowConfig, Windows};
+pub use window::{Batch, Features, Normaliser, SeriesWindows, WindowConfig, Windows};

@@ -146,11 +146,19 @@ pub struct LossConfig {
     pub alpha2: f64,
     /// How the two phases are stepped. Default [`MinMax::Summed`] (Anomaly Transformer code).
     pub min_max: MinMax,
+    /// Weight of attacked steps in `L_class` (class imbalance: about one step in eight is
+    /// attacked). Default 1.
+    #[serde(default = "one")]
+    pub pos_weight: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 impl Default for LossConfig {
     fn default() -> Self {
-        Self { lambda: 3.0, alpha1: 1.0, alpha2: 1.0, min_max: MinMax::Summed }
+        Self { lambda: 3.0, alpha1: 1.0, alpha2: 1.0, min_max: MinMax::Summed, pos_weight: 1.0 }
     }
 }
 
@@ -559,7 +567,7 @@ impl QuadFormerNet {
         let recon = (&out.r_hat - &batch.x)?.sqr()?.mean_all()?;
         let dis_min = (Self::tcd(&out, GradFlow::Pass, GradFlow::Stop)?.mean_all()? * cfg.lambda)?;
         let dis_max = (Self::tcd(&out, GradFlow::Stop, GradFlow::Pass)?.mean_all()? * cfg.lambda)?;
-        let class = masked_bce_with_logits(&out.logits, &batch.y, &batch.mask, batch.n_labelled)?;
+        let class = masked_bce_with_logits(&out.logits, &batch.y, &batch.mask, batch.n_labelled, cfg.pos_weight)?;
         Ok(LossTerms { recon, dis_min, dis_max, class })
     }
 
@@ -577,17 +585,30 @@ impl QuadFormerNet {
         let recon = (&out.r_hat - &batch.x)?.sqr()?.mean_all()?;
         let dis = Self::tcd(&out, GradFlow::Pass, GradFlow::Reverse)?.mean_all()?;
         let dis = ((&dis - dis.detach())? * cfg.lambda)?;
-        let class = masked_bce_with_logits(&out.logits, &batch.y, &batch.mask, batch.n_labelled)?;
+        let class = masked_bce_with_logits(&out.logits, &batch.y, &batch.mask, batch.n_labelled, cfg.pos_weight)?;
         (recon.affine(2.0, 0.0)? + dis)? + class.affine(cfg.alpha1 + cfg.alpha2, 0.0)?
     }
 }
 
-/// BCE with logits, `relu(z) − z·y + ln(1 + e^{−|z|})`, averaged over the masked steps.
+/// BCE with logits and positive-class weight `w`, `(1 − y)·softplus(z) + w·y·softplus(−z)`
+/// (PyTorch's `BCEWithLogitsLoss(pos_weight)`), averaged over the masked steps; `w = 1` is the
+/// plain BCE `relu(z) − z·y + ln(1 + e^{−|z|})`.
 ///
 /// # Errors
 /// candle errors.
-pub fn masked_bce_with_logits(z: &Tensor, y: &Tensor, mask: &Tensor, n_labelled: usize) -> candle_core::Result<Tensor> {
-    let bce = ((z.relu()? - (z * y)?)? + (z.abs()?.neg()?.exp()? + 1.0)?.log()?)?;
+pub fn masked_bce_with_logits(
+    z: &Tensor,
+    y: &Tensor,
+    mask: &Tensor,
+    n_labelled: usize,
+    pos_weight: f64,
+) -> candle_core::Result<Tensor> {
+    let softplus = (z.relu()? + (z.abs()?.neg()?.exp()? + 1.0)?.log()?)?;
+    let bce = if pos_weight == 1.0 {
+        (softplus - (z * y)?)?
+    } else {
+        ((softplus * y.affine(pos_weight - 1.0, 1.0)?)? - (z * y)?.affine(pos_weight, 0.0)?)?
+    };
     (bce * mask)?.sum_all()? / n_labelled.max(1) as f64
 }
 

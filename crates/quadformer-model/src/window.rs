@@ -3,8 +3,13 @@
 //! Shared by QUADFormer and the CNN/LSTM baselines so that every learning method sees the same
 //! windows, normalisation and stitching.
 //!
-//! - [`Normaliser`]: per-channel mean and standard deviation of `r_k`, fitted on the training
-//!   split only and saved with a model (residue units, e.g. m and rad, become dimensionless).
+//! - [`Features`]: what a learning method reads at each step. By default the residue whitened
+//!   by what the filter already knows, `z_i = r_i / √(S_k)_ii`, plus the Mahalanobis norm
+//!   `√NIS_k` as one more channel, each compressed by `sign(x)·ln(1 + |x|)`. A correctly
+//!   configured change of sensor noise then leaves the input distribution unchanged
+//!   (docs/decisions/044-whitened-inputs.md). [`Features::Raw`] is `r_k` itself.
+//! - [`Normaliser`]: the feature map and the per-feature mean and standard deviation, fitted on
+//!   the training split only and saved with a model.
 //! - [`Windows`]: `n_win` windows of `l` steps × `m` channels (row-major `f32`), per-step
 //!   labels `y ∈ {0, 1}` and a label-known mask (1 where the flight is labelled and the step is
 //!   real, 0 for unlabelled flights and padding). Consecutive windows of a flight start `stride`
@@ -14,13 +19,70 @@
 //!   series, the mean over all windows that cover the step.
 
 use candle_core::{Device, Tensor};
-use ekf_residue::{LabelledResidues, ResidueSeries};
+use ekf_residue::{LabelledResidues, ResidueSeries, ResidueStep};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
 
 /// Smallest standard deviation treated as non-zero; a constant channel is divided by 1.
 const STD_FLOOR: f64 = 1e-12;
+
+/// What a learning method reads at each residue step (module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+pub enum Features {
+    /// The innovation `r_k` as it is (m, rad); the only map before whitened inputs existed, so
+    /// a saved normaliser without the field reads as this.
+    Raw,
+    /// `r_i / √(S_k)_ii` per channel and `√NIS_k`: `m + 1` features, unit scale on clean steps.
+    Whitened,
+    /// [`Features::Whitened`] with every value compressed by `sign(x)·ln(1 + |x|)`, so that
+    /// attacks of tens of σ stay within a few units (the default).
+    #[default]
+    WhitenedLog,
+}
+
+impl Features {
+    /// Number of features for `m` residue channels.
+    pub fn dim(self, m: usize) -> usize {
+        match self {
+            Features::Raw => m,
+            Features::Whitened | Features::WhitenedLog => m + 1,
+        }
+    }
+
+    /// Feature names for the residue channels `channels`.
+    pub fn names(self, channels: &[String]) -> Vec<String> {
+        match self {
+            Features::Raw => channels.to_vec(),
+            Features::Whitened | Features::WhitenedLog => {
+                channels.iter().map(|c| format!("{c}/sigma")).chain(std::iter::once("sqrt_nis".to_string())).collect()
+            }
+        }
+    }
+
+    /// Writes the features of one step (`r_k`, row-major `S_k`, `NIS_k`) into `out`
+    /// (length [`Features::dim`]). A non-positive variance counts as 1.
+    pub fn compute(self, r_k: &[f64], s_k: &[f64], nis: f64, out: &mut [f64]) {
+        let m = r_k.len();
+        match self {
+            Features::Raw => out.copy_from_slice(r_k),
+            Features::Whitened | Features::WhitenedLog => {
+                for (i, (o, r)) in out.iter_mut().zip(r_k).enumerate() {
+                    let var = s_k.get(i * m + i).copied().unwrap_or(1.0);
+                    *o = if var > 0.0 { r / var.sqrt() } else { *r };
+                }
+                if let Some(last) = out.get_mut(m) {
+                    *last = nis.max(0.0).sqrt();
+                }
+                if self == Features::WhitenedLog {
+                    for o in out.iter_mut() {
+                        *o = o.signum() * o.abs().ln_1p();
+                    }
+                }
+            }
+        }
+    }
+}
 
 /// Window length and stride.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -32,12 +94,20 @@ pub struct WindowConfig {
     /// Steps between the starts of consecutive training windows. Default 10: chosen on
     /// validation F1 per minute of training (docs/decisions/041-window-stride.md).
     pub stride: usize,
+    /// What each step of a window holds. Default [`Features::WhitenedLog`]
+    /// (docs/decisions/044-whitened-inputs.md).
+    #[serde(default)]
+    pub features: Features,
 }
 
 impl Default for WindowConfig {
     fn default() -> Self {
-        Self { len: 100, stride: 10 }
+        Self { len: 100, stride: 10, features: Features::default() }
     }
+}
+
+fn raw_features() -> Features {
+    Features::Raw
 }
 
 impl WindowConfig {
@@ -59,34 +129,41 @@ impl WindowConfig {
     }
 }
 
-/// Per-channel standardisation `(r − μ) / σ`, fitted on training data.
+/// The feature map of a step and the per-feature standardisation `(x − μ) / σ`, fitted on
+/// training data.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Normaliser {
-    /// Channel names, in order.
+    /// Residue channel names, in order (what a series must have).
     pub channels: Vec<String>,
-    /// Mean `μ` per channel, residue units.
+    /// The feature map (a saved normaliser without the field used [`Features::Raw`]).
+    #[serde(default = "raw_features")]
+    pub features: Features,
+    /// Mean `μ` per feature.
     pub mean: Vec<f64>,
-    /// Standard deviation `σ` per channel, residue units (1 for a constant channel).
+    /// Standard deviation `σ` per feature (1 for a constant feature).
     pub std: Vec<f64>,
 }
 
 impl Normaliser {
-    /// Fits mean and standard deviation of every channel over all steps of `train`.
+    /// Fits mean and standard deviation of every feature over all steps of `train`.
     ///
     /// # Errors
     /// [`ModelError::Data`] if `train` has no steps.
-    pub fn fit(train: &LabelledResidues) -> Result<Self> {
+    pub fn fit(train: &LabelledResidues, features: Features) -> Result<Self> {
         let m = train.channels().len();
         let n = train.n_steps();
         if n == 0 || m == 0 {
             return Err(ModelError::Data { msg: "cannot fit a normaliser on an empty training split".into() });
         }
-        let mut sum = vec![0.0; m];
-        let mut sum_sq = vec![0.0; m];
+        let dim = features.dim(m);
+        let mut sum = vec![0.0; dim];
+        let mut sum_sq = vec![0.0; dim];
+        let mut row = vec![0.0; dim];
         for f in train.flights() {
-            for row in f.series().r().chunks_exact(m) {
-                for ((s, q), v) in sum.iter_mut().zip(&mut sum_sq).zip(row) {
+            for step in f.series().steps() {
+                features.compute(step.r_k, step.s_k, step.nis, &mut row);
+                for ((s, q), v) in sum.iter_mut().zip(&mut sum_sq).zip(&row) {
                     *s += v;
                     *q += v * v;
                 }
@@ -103,19 +180,64 @@ impl Normaliser {
                 if sd > STD_FLOOR { sd } else { 1.0 }
             })
             .collect();
-        Ok(Self { channels: train.channels().to_vec(), mean, std })
+        Ok(Self { channels: train.channels().to_vec(), features, mean, std })
     }
 
-    /// Number of channels `m`.
+    /// Number of features per step (the networks' input width).
     pub fn dim(&self) -> usize {
-        self.channels.len()
+        self.features.dim(self.channels.len())
     }
 
-    /// Writes the normalised `r_k` into `out` (both of length `m`).
-    pub fn apply(&self, r_k: &[f64], out: &mut [f32]) {
-        for (((o, v), mu), sd) in out.iter_mut().zip(r_k).zip(&self.mean).zip(&self.std) {
+    /// Writes the normalised features of step `step` into `out` (length [`Normaliser::dim`]).
+    pub fn apply(&self, step: &ResidueStep<'_>, out: &mut [f32]) {
+        let mut row = [0.0f64; 32];
+        let mut heap;
+        let row: &mut [f64] = if self.dim() <= row.len() {
+            &mut row[..self.dim()]
+        } else {
+            heap = vec![0.0; self.dim()];
+            &mut heap
+        };
+        self.features.compute(step.r_k, step.s_k, step.nis, row);
+        for (((o, v), mu), sd) in out.iter_mut().zip(row.iter()).zip(&self.mean).zip(&self.std) {
             *o = ((v - mu) / sd) as f32;
         }
+    }
+
+    /// Where each normalised feature is mirrored by a sign flip of the residue, `r_k → −r_k`:
+    /// `Some(c)` for a feature odd in `r_k` (mirrored value `2c − x`, with `c = −μ/σ` the image
+    /// of a zero residue), `None` for an even one (`√NIS`, unchanged).
+    pub fn mirror_centres(&self) -> Vec<Option<f32>> {
+        let m = self.channels.len();
+        (0..self.dim())
+            .map(|i| (i < m).then(|| (-self.mean[i] / self.std[i]) as f32))
+            .collect()
+    }
+
+    /// Checks that the fitted statistics match the feature map: one finite mean and one
+    /// finite positive standard deviation per feature.
+    ///
+    /// # Errors
+    /// [`ModelError::Data`] naming what is wrong.
+    pub fn check(&self) -> Result<()> {
+        let dim = self.dim();
+        if self.mean.len() != dim || self.std.len() != dim {
+            return Err(ModelError::Data {
+                msg: format!(
+                    "normaliser: {:?} features of {} channels need {dim} means and standard deviations, got {} and {}",
+                    self.features,
+                    self.channels.len(),
+                    self.mean.len(),
+                    self.std.len()
+                ),
+            });
+        }
+        if self.mean.iter().any(|v| !v.is_finite()) || self.std.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+            return Err(ModelError::Data {
+                msg: "normaliser: means must be finite and standard deviations finite and positive".into(),
+            });
+        }
+        Ok(())
     }
 
     /// Checks that the series has the fitted channels.
@@ -189,6 +311,8 @@ impl SeriesWindows {
 pub struct Windows {
     len: usize,
     dim: usize,
+    /// [`Normaliser::mirror_centres`] of the normaliser the windows were made with.
+    mirror: Vec<Option<f32>>,
     x: Vec<f32>,
     y: Vec<f32>,
     mask: Vec<f32>,
@@ -248,6 +372,7 @@ impl Windows {
         {
             return Err(ModelError::Data { msg: format!("{} labels for {} steps", l.len(), series.len()) });
         }
+        self.mirror = norm.mirror_centres();
         let (l, m) = (self.len, self.dim);
         let sw = SeriesWindows::new(series.len(), l, stride);
         if sw.starts.is_empty() {
@@ -260,8 +385,9 @@ impl Windows {
         let mut ms = vec![0.0f32; n_pad];
         for k in 0..n_pad {
             let src = k.saturating_sub(sw.pad);
-            let r_k = &series.r()[src * m..(src + 1) * m];
-            norm.apply(r_k, &mut xs[k * m..(k + 1) * m]);
+            if let Some(step) = series.step(src) {
+                norm.apply(&step, &mut xs[k * m..(k + 1) * m]);
+            }
             if k >= sw.pad
                 && let Some(lab) = labels
             {
@@ -328,16 +454,37 @@ impl Windows {
     /// # Errors
     /// [`ModelError::Data`] for an index past the end; [`ModelError::Candle`].
     pub fn batch(&self, idx: &[usize], device: &Device) -> Result<Batch> {
+        self.batch_mirrored(idx, &[], device)
+    }
+
+    /// The windows `idx` as a [`Batch`], window `idx[i]` mirrored (`r_k → −r_k` at every step,
+    /// [`Normaliser::mirror_centres`]) where `mirrored[i]` is true; a short `mirrored` leaves
+    /// the rest as they are. A sign-flipped attack is an attack of the opposite offset, so this
+    /// doubles the labelled examples without changing what they mean (training augmentation).
+    ///
+    /// # Errors
+    /// As [`Windows::batch`].
+    pub fn batch_mirrored(&self, idx: &[usize], mirrored: &[bool], device: &Device) -> Result<Batch> {
         let (l, m, n) = (self.len, self.dim, self.len());
         let b = idx.len();
         let mut x = Vec::with_capacity(b * l * m);
         let mut y = Vec::with_capacity(b * l);
         let mut mask = Vec::with_capacity(b * l);
-        for &w in idx {
+        for (i, &w) in idx.iter().enumerate() {
             if w >= n {
                 return Err(ModelError::Data { msg: format!("window index {w} out of range ({n} windows)") });
             }
+            let start = x.len();
             x.extend_from_slice(&self.x[w * l * m..(w + 1) * l * m]);
+            if mirrored.get(i).copied().unwrap_or(false) {
+                for row in x[start..].chunks_exact_mut(m) {
+                    for (v, c) in row.iter_mut().zip(&self.mirror) {
+                        if let Some(c) = c {
+                            *v = 2.0 * c - *v;
+                        }
+                    }
+                }
+            }
             y.extend_from_slice(&self.y[w * l..(w + 1) * l]);
             mask.extend_from_slice(&self.mask[w * l..(w + 1) * l]);
         }
@@ -383,9 +530,9 @@ mod tests {
             LabelledSeries::new(s, None).unwrap(),
         ])
         .unwrap();
-        let norm = Normaliser::fit(&split).unwrap();
+        let norm = Normaliser::fit(&split, Features::Raw).unwrap();
         assert!((norm.mean[0] - 5.5).abs() < 1e-12);
-        let w = Windows::from_split(&split, &norm, &WindowConfig { len: 5, stride: 5 }).unwrap();
+        let w = Windows::from_split(&split, &norm, &WindowConfig { len: 5, stride: 5, features: Features::Raw }).unwrap();
         // Starts 0, 5, 7 per flight.
         assert_eq!(w.len(), 6);
         assert_eq!(w.n_labelled(), 15);
@@ -396,7 +543,92 @@ mod tests {
         assert!(w.batch(&[6], &Device::Cpu).is_err());
     }
 
+    /// A one-flight split of `series`, unlabelled.
+    fn split_of(series: ResidueSeries) -> LabelledResidues {
+        LabelledResidues::new(vec![LabelledSeries::new(series, None).unwrap()]).unwrap()
+    }
+
+    /// A two-channel series with correlated `S_k` that varies per step.
+    fn series_with_cov(r: &[(f64, f64)], scale: f64) -> ResidueSeries {
+        let n = r.len();
+        let t = (0..n).map(|k| k as f64 * 0.1).collect();
+        let flat = r.iter().flat_map(|&(a, b)| [a * scale, b * scale]).collect();
+        let s = (0..n)
+            .flat_map(|k| {
+                let (a, b) = (1.0 + 0.1 * k as f64, 2.0 + 0.05 * k as f64);
+                [a * scale * scale, 0.3 * scale * scale, 0.3 * scale * scale, b * scale * scale]
+            })
+            .collect();
+        ResidueSeries::from_flat(t, vec!["a".into(), "b".into()], flat, s).unwrap()
+    }
+
+    #[test]
+    fn whitened_features_divide_by_the_innovation_sigma_and_add_sqrt_nis() {
+        let s = series_with_cov(&[(2.0, -4.0)], 1.0);
+        let step = s.step(0).unwrap();
+        let mut out = [0.0; 3];
+        Features::Whitened.compute(step.r_k, step.s_k, step.nis, &mut out);
+        assert!((out[0] - 2.0).abs() < 1e-12 && (out[1] + 4.0 / 2f64.sqrt()).abs() < 1e-12, "{out:?}");
+        assert!((out[2] - step.nis.sqrt()).abs() < 1e-12);
+        let mut log = [0.0; 3];
+        Features::WhitenedLog.compute(step.r_k, step.s_k, step.nis, &mut log);
+        for (l, w) in log.iter().zip(&out) {
+            assert!((l - w.signum() * w.abs().ln_1p()).abs() < 1e-12);
+        }
+        assert_eq!(Features::WhitenedLog.names(s.channels()), ["a/sigma", "b/sigma", "sqrt_nis"]);
+    }
+
+    #[test]
+    fn a_saved_normaliser_without_features_reads_as_raw() {
+        let old = r#"{"channels":["a"],"mean":[0.5],"std":[2.0]}"#;
+        let n: Normaliser = serde_json::from_str(old).unwrap();
+        assert_eq!((n.features, n.dim()), (Features::Raw, 1));
+        n.check().unwrap();
+        let bad = Normaliser { std: vec![-1.0], ..n };
+        assert!(bad.check().is_err());
+    }
+
+    #[test]
+    fn a_mirrored_window_is_the_window_of_the_negated_residues() {
+        let r: Vec<(f64, f64)> = (0..12).map(|k| ((k as f64 * 0.7).sin() + 0.3, (k as f64 * 0.3).cos() - 0.2)).collect();
+        let neg: Vec<(f64, f64)> = r.iter().map(|&(a, b)| (-a, -b)).collect();
+        for features in [Features::Raw, Features::Whitened, Features::WhitenedLog] {
+            let norm = Normaliser::fit(&split_of(series_with_cov(&r, 1.0)), features).unwrap();
+            let cfg = WindowConfig { len: 4, stride: 4, features };
+            let w = Windows::from_split(&split_of(series_with_cov(&r, 1.0)), &norm, &cfg).unwrap();
+            let w_neg = Windows::from_split(&split_of(series_with_cov(&neg, 1.0)), &norm, &cfg).unwrap();
+            let idx: Vec<usize> = (0..w.len()).collect();
+            let mirrored = w.batch_mirrored(&idx, &vec![true; idx.len()], &Device::Cpu).unwrap();
+            let a = mirrored.x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let b = w_neg.batch(&idx, &Device::Cpu).unwrap().x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            assert!(a.iter().zip(&b).all(|(u, v)| (u - v).abs() < 1e-5), "{features:?}: {a:?} vs {b:?}");
+            let plain = w.batch(&idx, &Device::Cpu).unwrap().x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let none = w.batch_mirrored(&idx, &[], &Device::Cpu).unwrap().x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            assert_eq!(plain, none);
+        }
+    }
+
     proptest! {
+        /// A consistent filter whose sensors are `c` times noisier reports `c·r` with `c²·S`:
+        /// the whitened features, and so every learning method's input, do not change.
+        #[test]
+        fn whitened_features_ignore_the_noise_level(
+            r in proptest::collection::vec((-50.0f64..50.0, -50.0f64..50.0), 1..20),
+            c in 0.01f64..100.0,
+        ) {
+            let (base, scaled) = (series_with_cov(&r, 1.0), series_with_cov(&r, c));
+            for features in [Features::Whitened, Features::WhitenedLog] {
+                for (a, b) in base.steps().zip(scaled.steps()) {
+                    let (mut fa, mut fb) = ([0.0; 3], [0.0; 3]);
+                    features.compute(a.r_k, a.s_k, a.nis, &mut fa);
+                    features.compute(b.r_k, b.s_k, b.nis, &mut fb);
+                    for (x, y) in fa.iter().zip(&fb) {
+                        prop_assert!((x - y).abs() <= 1e-9 * (1.0 + x.abs()), "{:?} vs {:?}", fa, fb);
+                    }
+                }
+            }
+        }
+
         #[test]
         fn stitch_of_step_index_is_identity(n in 1usize..60, l in 2usize..20, stride in 1usize..25) {
             let sw = SeriesWindows::new(n, l, stride);

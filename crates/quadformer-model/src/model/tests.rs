@@ -213,10 +213,21 @@ fn bce_matches_definition() {
     let z = Tensor::new(&[[0.0f32, 2.0, -3.0]], &Device::Cpu).unwrap();
     let y = Tensor::new(&[[1.0f32, 0.0, 0.0]], &Device::Cpu).unwrap();
     let mask = Tensor::new(&[[1.0f32, 1.0, 0.0]], &Device::Cpu).unwrap();
-    let got = masked_bce_with_logits(&z, &y, &mask, 2).unwrap().to_scalar::<f32>().unwrap();
+    let got = masked_bce_with_logits(&z, &y, &mask, 2, 1.0).unwrap().to_scalar::<f32>().unwrap();
     let sig = |v: f64| 1.0 / (1.0 + (-v).exp());
     let want = (-(sig(0.0).ln()) - (1.0 - sig(2.0)).ln()) / 2.0;
     assert!((f64::from(got) - want).abs() < 1e-6, "{got} vs {want}");
+}
+
+#[test]
+fn weighted_bce_weighs_attacked_steps() {
+    let z = Tensor::new(&[[0.5f32, 2.0, -3.0]], &Device::Cpu).unwrap();
+    let y = Tensor::new(&[[1.0f32, 0.0, 1.0]], &Device::Cpu).unwrap();
+    let mask = Tensor::new(&[[1.0f32, 1.0, 1.0]], &Device::Cpu).unwrap();
+    let got = masked_bce_with_logits(&z, &y, &mask, 3, 4.0).unwrap().to_scalar::<f32>().unwrap();
+    let sig = |v: f64| 1.0 / (1.0 + (-v).exp());
+    let want = (-4.0 * sig(0.5).ln() - (1.0 - sig(2.0)).ln() - 4.0 * sig(-3.0).ln()) / 3.0;
+    assert!((f64::from(got) - want).abs() < 1e-5, "{got} vs {want}");
 }
 
 fn distribution(raw: &[f64]) -> Vec<f32> {
