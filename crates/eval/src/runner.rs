@@ -433,7 +433,9 @@ pub fn evaluate_streaming(
     let scores = test
         .flights()
         .iter()
-        .map(|f| detector.score_streaming(f.series()).map_err(|source| RunError::Score { method: method.name(), source }))
+        .map(|f| {
+            detector.score_streaming(f.series()).map_err(|source| RunError::Score { method: method.name(), source })
+        })
         .collect::<Result<Vec<_>>>()?;
     let alarms: Vec<Vec<bool>> = scores.iter().map(|s| s.iter().map(|&v| v > threshold).collect()).collect();
     evaluate_split(test, &scores, &alarms, method.name(), cell)

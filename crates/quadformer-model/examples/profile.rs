@@ -124,7 +124,7 @@ fn train() -> Result<(), Box<dyn std::error::Error>> {
     time("recon + class loss + backward (no TCD)", n, || {
         let out = net.forward(&batch.x)?;
         let recon = (&out.r_hat - &batch.x)?.sqr()?.mean_all()?;
-        let class = masked_bce_with_logits(&out.logits, &batch.y, &batch.mask, batch.n_labelled)?;
+        let class = masked_bce_with_logits(&out.logits, &batch.y, &batch.mask, batch.n_labelled, 1.0)?;
         (recon + class)?.backward()
     })?;
     // The element-wise blocks of one step, forward and backward, at their training sizes.

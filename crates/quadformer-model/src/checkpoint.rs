@@ -128,6 +128,14 @@ impl QuadFormerDetector {
             ));
         }
         manifest.config.check()?;
+        // The weights live beside the manifest: a plain file name, never a path.
+        let plain = Path::new(&manifest.weights_file).file_name().is_some_and(|n| n == manifest.weights_file.as_str());
+        if !plain {
+            return Err(ck(
+                path,
+                format!("weights_file must be a file name beside the manifest, got `{}`", manifest.weights_file),
+            ));
+        }
         let weights = path.with_file_name(&manifest.weights_file);
         let bytes = std::fs::read(&weights).map_err(io(&weights))?;
         if bytes.len() as u64 != manifest.weights_bytes {

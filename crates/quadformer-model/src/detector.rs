@@ -152,7 +152,12 @@ impl QuadFormerConfig {
         self.net.check()?;
         self.train.check()?;
         let l = &self.loss;
-        for (field, v) in [("loss.lambda", l.lambda), ("loss.alpha1", l.alpha1), ("loss.alpha2", l.alpha2), ("loss.pos_weight", l.pos_weight)] {
+        for (field, v) in [
+            ("loss.lambda", l.lambda),
+            ("loss.alpha1", l.alpha1),
+            ("loss.alpha2", l.alpha2),
+            ("loss.pos_weight", l.pos_weight),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(ModelError::Config { field, msg: format!("must be finite and non-negative, got {v}") });
             }

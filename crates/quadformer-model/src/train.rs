@@ -67,8 +67,8 @@ pub struct TrainConfig {
     #[serde(default)]
     pub labelled_share: Option<f64>,
     /// Mirror each training window with probability ½ (`r_k → −r_k`,
-    /// [`Windows::batch_mirrored`]). Default false; the full-run configuration sets it
-    /// (docs/decisions/044-whitened-inputs.md).
+    /// [`Windows::batch_mirrored`]). Default false here; the QUADFormer, CNN and LSTM
+    /// configurations turn it on (docs/decisions/044-whitened-inputs.md).
     #[serde(default)]
     pub mirror: bool,
     /// Seed of the shuffling generator. Default 0.
@@ -270,7 +270,8 @@ pub fn train<M: TrainableModel + ?Sized>(
         let t0 = Instant::now();
         let mut loss_sum = 0.0;
         for (b, chunk) in idx.chunks(cfg.batch_size).enumerate() {
-            let mirrored: Vec<bool> = if cfg.mirror { chunk.iter().map(|_| rng.random_bool(0.5)).collect() } else { Vec::new() };
+            let mirrored: Vec<bool> =
+                if cfg.mirror { chunk.iter().map(|_| rng.random_bool(0.5)).collect() } else { Vec::new() };
             let batch = windows.batch_mirrored(chunk, &mirrored, &device)?;
             for phase in 0..model.n_phases() {
                 let loss = model.loss(&batch, phase)?;
@@ -352,7 +353,12 @@ mod tests {
             ResidueSeries::from_flat((0..n).map(|k| k as f64).collect(), vec!["a".into()], r, vec![1.0; n]).unwrap();
         let split = LabelledResidues::new(vec![LabelledSeries::new(s, Some(labels)).unwrap()]).unwrap();
         let norm = crate::window::Normaliser::fit(&split, crate::window::Features::Raw).unwrap();
-        Windows::from_split(&split, &norm, &crate::window::WindowConfig { len: 10, stride: 10, features: crate::window::Features::Raw }).unwrap()
+        Windows::from_split(
+            &split,
+            &norm,
+            &crate::window::WindowConfig { len: 10, stride: 10, features: crate::window::Features::Raw },
+        )
+        .unwrap()
     }
 
     fn run(seed: u64) -> (TrainReport, Vec<f32>) {
@@ -405,7 +411,12 @@ mod tests {
         };
         let split = LabelledResidues::new(vec![flight(true), flight(false)]).unwrap();
         let norm = crate::window::Normaliser::fit(&split, crate::window::Features::Raw).unwrap();
-        let w = Windows::from_split(&split, &norm, &crate::window::WindowConfig { len: 10, stride: 10, features: crate::window::Features::Raw }).unwrap();
+        let w = Windows::from_split(
+            &split,
+            &norm,
+            &crate::window::WindowConfig { len: 10, stride: 10, features: crate::window::Features::Raw },
+        )
+        .unwrap();
         assert_eq!((0..w.len()).filter(|&i| w.is_labelled(i)).count(), 10);
         let mut rng = StdRng::seed_from_u64(1);
         // 80% of 16 windows = 13 labelled: all 10 once, then 3 repeats; 3 unlabelled.

@@ -110,16 +110,21 @@ fn raw_features() -> Features {
     Features::Raw
 }
 
+/// Longest window accepted, in steps (200 s at 10 Hz). One attention map of a window this long
+/// holds 4 million entries per head and layer; anything longer is a configuration error
+/// rather than an allocation the machine cannot make.
+pub const MAX_WINDOW_LEN: usize = 2_000;
+
 impl WindowConfig {
-    /// Checks `len ≥ 2` and `1 ≤ stride`.
+    /// Checks `2 ≤ len ≤` [`MAX_WINDOW_LEN`] and `1 ≤ stride`.
     ///
     /// # Errors
     /// [`ModelError::Config`] naming the field.
     pub fn check(&self) -> Result<()> {
-        if self.len < 2 {
+        if !(2..=MAX_WINDOW_LEN).contains(&self.len) {
             return Err(ModelError::Config {
                 field: "window.len",
-                msg: format!("must be at least 2, got {}", self.len),
+                msg: format!("must be between 2 and {MAX_WINDOW_LEN}, got {}", self.len),
             });
         }
         if self.stride == 0 {
@@ -190,12 +195,13 @@ impl Normaliser {
 
     /// Writes the normalised features of step `step` into `out` (length [`Normaliser::dim`]).
     pub fn apply(&self, step: &ResidueStep<'_>, out: &mut [f32]) {
-        let mut row = [0.0f64; 32];
-        let mut heap;
-        let row: &mut [f64] = if self.dim() <= row.len() {
-            &mut row[..self.dim()]
+        // A stack row for the usual widths keeps streaming decisions free of allocations.
+        let mut stack = [0.0f64; 32];
+        let mut heap = Vec::new();
+        let row: &mut [f64] = if self.dim() <= stack.len() {
+            &mut stack[..self.dim()]
         } else {
-            heap = vec![0.0; self.dim()];
+            heap.resize(self.dim(), 0.0);
             &mut heap
         };
         self.features.compute(step.r_k, step.s_k, step.nis, row);
@@ -209,9 +215,7 @@ impl Normaliser {
     /// of a zero residue), `None` for an even one (`√NIS`, unchanged).
     pub fn mirror_centres(&self) -> Vec<Option<f32>> {
         let m = self.channels.len();
-        (0..self.dim())
-            .map(|i| (i < m).then(|| (-self.mean[i] / self.std[i]) as f32))
-            .collect()
+        (0..self.dim()).map(|i| (i < m).then(|| (-self.mean[i] / self.std[i]) as f32)).collect()
     }
 
     /// Checks that the fitted statistics match the feature map: one finite mean and one
@@ -532,7 +536,8 @@ mod tests {
         .unwrap();
         let norm = Normaliser::fit(&split, Features::Raw).unwrap();
         assert!((norm.mean[0] - 5.5).abs() < 1e-12);
-        let w = Windows::from_split(&split, &norm, &WindowConfig { len: 5, stride: 5, features: Features::Raw }).unwrap();
+        let w =
+            Windows::from_split(&split, &norm, &WindowConfig { len: 5, stride: 5, features: Features::Raw }).unwrap();
         // Starts 0, 5, 7 per flight.
         assert_eq!(w.len(), 6);
         assert_eq!(w.n_labelled(), 15);
@@ -590,7 +595,8 @@ mod tests {
 
     #[test]
     fn a_mirrored_window_is_the_window_of_the_negated_residues() {
-        let r: Vec<(f64, f64)> = (0..12).map(|k| ((k as f64 * 0.7).sin() + 0.3, (k as f64 * 0.3).cos() - 0.2)).collect();
+        let r: Vec<(f64, f64)> =
+            (0..12).map(|k| ((k as f64 * 0.7).sin() + 0.3, (k as f64 * 0.3).cos() - 0.2)).collect();
         let neg: Vec<(f64, f64)> = r.iter().map(|&(a, b)| (-a, -b)).collect();
         for features in [Features::Raw, Features::Whitened, Features::WhitenedLog] {
             let norm = Normaliser::fit(&split_of(series_with_cov(&r, 1.0)), features).unwrap();
@@ -603,7 +609,8 @@ mod tests {
             let b = w_neg.batch(&idx, &Device::Cpu).unwrap().x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
             assert!(a.iter().zip(&b).all(|(u, v)| (u - v).abs() < 1e-5), "{features:?}: {a:?} vs {b:?}");
             let plain = w.batch(&idx, &Device::Cpu).unwrap().x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-            let none = w.batch_mirrored(&idx, &[], &Device::Cpu).unwrap().x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let none =
+                w.batch_mirrored(&idx, &[], &Device::Cpu).unwrap().x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
             assert_eq!(plain, none);
         }
     }

@@ -144,6 +144,20 @@ fn corrupt_truncated_and_mismatched_checkpoints_are_clear_errors() {
     expect_err("unknown field");
     std::fs::write(&path, &good_j[..good_j.len() / 3]).unwrap();
     expect_err("malformed manifest");
+    for outside in ["../qf.safetensors", "/etc/passwd", "..", "sub/qf.safetensors"] {
+        std::fs::write(
+            &path,
+            good_j.replace("\"weights_file\": \"qf.safetensors\"", &format!("\"weights_file\": {outside:?}")),
+        )
+        .unwrap();
+        expect_err("weights_file must be a file name");
+    }
+    std::fs::write(&path, good_j.replace("\"len\": 16", "\"len\": 1000000000")).unwrap();
+    expect_err("window.len");
+    let negative_std = good_j.replacen("\"std\": [\n      ", "\"std\": [\n      -", 1);
+    assert_ne!(negative_std, good_j, "the manifest layout changed");
+    std::fs::write(&path, negative_std).unwrap();
+    expect_err("standard deviations finite and positive");
     std::fs::remove_file(&weights).unwrap();
     std::fs::write(&path, &good_j).unwrap();
     assert!(matches!(QuadFormerDetector::load(&path), Err(ModelError::Io { .. })));
@@ -161,7 +175,7 @@ fn online_matches_batch_on_one_window_and_checks_input() {
     }
     let last = last.unwrap();
     assert!((last.score - batch[L - 1]).abs() < 1e-6, "{} vs {}", last.score, batch[L - 1]);
-    assert_eq!(last.alarm, last.score > det.threshold());
+    assert_eq!(last.alarm, last.score > det.stream_threshold());
     let bad = ResidueStep { t: 0.0, r_k: &[1.0, 2.0], s_k: &[1.0, 0.0, 0.0, 1.0], nis: 5.0 };
     assert!(matches!(online.update(&bad), Err(DetectError::Residue(_))));
     online.reset();
@@ -181,6 +195,34 @@ fn online_matches_batch_in_every_mode() {
         let last = f.series().steps().map(|s| online.update(&s).unwrap()).last().unwrap();
         assert!((last.score - batch[L - 1]).abs() < 1e-6, "{:?}: {} vs {}", r.mode, last.score, batch[L - 1]);
     }
+}
+
+#[test]
+fn the_streaming_threshold_is_chosen_on_validation_streaming_scores_and_saved() {
+    let det = fitted();
+    let valid = split(&[4], 240, true);
+    let streamed: Vec<(Vec<f64>, &[bool])> =
+        valid.labelled().map(|(s, l)| (det.score_streaming(s).unwrap(), l)).collect();
+    let (want, _) = best_f1_threshold(streamed.iter().map(|(s, l)| (s.as_slice(), *l))).unwrap();
+    assert_eq!(det.stream_threshold(), want);
+    assert_eq!(Detector::streaming_threshold(det), want);
+    // The streaming scores are the online detector's.
+    let f = flight(3 * L, 33, 4.0, false);
+    let mut online = det.online();
+    for (step, s) in f.series().steps().zip(det.score_streaming(f.series()).unwrap()) {
+        let d = online.update(&step).unwrap();
+        assert!((d.score - s).abs() < 1e-9, "{} vs {s}", d.score);
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("qf.json");
+    det.save(&path).unwrap();
+    assert_eq!(QuadFormerDetector::load(&path).unwrap().stream_threshold(), want);
+    // A manifest written before streaming thresholds existed streams at the batch threshold.
+    let text = std::fs::read_to_string(&path).unwrap();
+    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    json.as_object_mut().unwrap().remove("stream_threshold");
+    std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+    assert_eq!(QuadFormerDetector::load(&path).unwrap().stream_threshold(), det.threshold());
 }
 
 #[test]
