@@ -42,8 +42,8 @@ const SCORE_BATCH: usize = 64;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct NeuralConfig {
-    /// Window length and training stride. Default `quadformer_model::WindowConfig::default()`
-    /// (`l = 100`, stride 10), the same windows as QUADFormer.
+    /// Window length, training stride and features. Default: QUADFormer's windows, `l = 100`
+    /// at stride 20 of whitened residues (docs/decisions/044-whitened-inputs.md).
     pub window: WindowConfig,
     /// Stride between windows when scoring a series (each step's score is the mean over its
     /// covering windows). Default 50 (`l/2`: every step seen twice, half the cost of stride 25).
@@ -284,6 +284,12 @@ fn fit_neural<N: PerStepNet>(
 ) -> Result<NeuralDetector<N>> {
     cfg.window.check()?;
     cfg.train.check()?;
+    if !(cfg.pos_weight.is_finite() && cfg.pos_weight >= 0.0) {
+        return Err(BaselineError::Config {
+            field: "pos_weight",
+            msg: format!("must be finite and non-negative, got {}", cfg.pos_weight),
+        });
+    }
     if cfg.hidden == 0 || cfg.kernel == 0 || cfg.score_stride == 0 {
         return Err(BaselineError::Config {
             field: "hidden",

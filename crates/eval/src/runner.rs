@@ -506,7 +506,10 @@ pub fn run_one(
     let cfgs = cfgs.seeded(seed);
     let key = run_key(data_key, method, &cfgs);
     let path = cache_path(cache_dir, cell, method, seed, &key);
-    if let Some(rec) = load_cached(&path, &key) {
+    // A learning method's record from before streaming metrics existed is recomputed.
+    if let Some(rec) = load_cached(&path, &key)
+        && !(method.is_learning() && rec.result.stream_f1.is_none())
+    {
         return Ok((rec, None));
     }
     let (fitted, scored, modes) = if method == Method::QuadFormer {

@@ -181,8 +181,12 @@ impl QuadFormerDetector {
         let mut vm = net.varmap().clone();
         vm.load(&weights).map_err(|e| ck(&weights, format!("does not match the config: {e}")))?;
         net.freeze()?;
+        // The feature map the weights were trained on is the normaliser's; a configuration
+        // saved before the field existed reads as `Raw` too, but the normaliser decides.
+        let mut config = manifest.config;
+        config.window.features = manifest.normaliser.features;
         Ok(QuadFormerDetector {
-            config: manifest.config,
+            config,
             streaming: StreamingNet::new(&net)?,
             net,
             norm: manifest.normaliser,

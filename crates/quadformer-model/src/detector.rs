@@ -315,6 +315,7 @@ impl std::fmt::Debug for QuadFormerDetector {
         f.debug_struct("QuadFormerDetector")
             .field("channels", &self.norm.channels)
             .field("chosen", &self.chosen)
+            .field("stream_threshold", &self.stream_threshold)
             .field("n_params", &self.net.n_params())
             .finish_non_exhaustive()
     }
@@ -519,8 +520,17 @@ impl OnlineDetector for OnlineQuadFormer<'_> {
         if step.dim() != m {
             return Err(ResidueError::StepDim { step_idx: k, what: "r_k", expected: m, got: step.dim() }.into());
         }
-        if step.r_k.iter().any(|v| !v.is_finite()) {
-            return Err(ResidueError::NonFinite { step_idx: k, what: "r_k" }.into());
+        if step.s_k.len() != m * m {
+            return Err(ResidueError::StepDim { step_idx: k, what: "S_k", expected: m * m, got: step.s_k.len() }.into());
+        }
+        for (what, finite) in [
+            ("r_k", step.r_k.iter().all(|v| v.is_finite())),
+            ("S_k", step.s_k.iter().all(|v| v.is_finite())),
+            ("nis", step.nis.is_finite()),
+        ] {
+            if !finite {
+                return Err(ResidueError::NonFinite { step_idx: k, what }.into());
+            }
         }
         self.det.norm.apply(step, &mut self.x);
         let score = self.score_newest()?;

@@ -10,7 +10,7 @@
 //!   (docs/decisions/044-whitened-inputs.md). [`Features::Raw`] is `r_k` itself.
 //! - [`Normaliser`]: the feature map and the per-feature mean and standard deviation, fitted on
 //!   the training split only and saved with a model.
-//! - [`Windows`]: `n_win` windows of `l` steps × `m` channels (row-major `f32`), per-step
+//! - [`Windows`]: `n_win` windows of `l` steps × the normaliser's features (row-major `f32`), per-step
 //!   labels `y ∈ {0, 1}` and a label-known mask (1 where the flight is labelled and the step is
 //!   real, 0 for unlabelled flights and padding). Consecutive windows of a flight start `stride`
 //!   steps apart; the last window always ends at the last step, so every step is covered.
@@ -65,7 +65,11 @@ impl Features {
     pub fn compute(self, r_k: &[f64], s_k: &[f64], nis: f64, out: &mut [f64]) {
         let m = r_k.len();
         match self {
-            Features::Raw => out.copy_from_slice(r_k),
+            Features::Raw => {
+                for (o, r) in out.iter_mut().zip(r_k) {
+                    *o = *r;
+                }
+            }
             Features::Whitened | Features::WhitenedLog => {
                 for (i, (o, r)) in out.iter_mut().zip(r_k).enumerate() {
                     let var = s_k.get(i * m + i).copied().unwrap_or(1.0);
@@ -91,12 +95,14 @@ pub struct WindowConfig {
     /// Window length `l` in residue steps. Default 100 (Anomaly Transformer `win_size`, the
     /// window of alg:alg2; shared/reference/anomaly-transformer-and-peers.md §2).
     pub len: usize,
-    /// Steps between the starts of consecutive training windows. Default 10: chosen on
-    /// validation F1 per minute of training (docs/decisions/041-window-stride.md).
+    /// Steps between the starts of consecutive training windows. Default 10
+    /// (docs/decisions/041-window-stride.md); QUADFormer, the CNN and the LSTM train at 20
+    /// (docs/decisions/044-whitened-inputs.md).
     pub stride: usize,
     /// What each step of a window holds. Default [`Features::WhitenedLog`]
-    /// (docs/decisions/044-whitened-inputs.md).
-    #[serde(default)]
+    /// (docs/decisions/044-whitened-inputs.md); a configuration saved without the field was
+    /// trained on [`Features::Raw`] and reads back as that.
+    #[serde(default = "raw_features")]
     pub features: Features,
 }
 
@@ -463,8 +469,10 @@ impl Windows {
 
     /// The windows `idx` as a [`Batch`], window `idx[i]` mirrored (`r_k → −r_k` at every step,
     /// [`Normaliser::mirror_centres`]) where `mirrored[i]` is true; a short `mirrored` leaves
-    /// the rest as they are. A sign-flipped attack is an attack of the opposite offset, so this
-    /// doubles the labelled examples without changing what they mean (training augmentation).
+    /// the rest as they are. A sign-flipped attack is an attack of the opposite offset as far
+    /// as the linearised filter goes, so this doubles the labelled examples (training
+    /// augmentation); under skewed noise (exponential) a mirrored clean window is slightly off
+    /// its distribution (docs/decisions/044-whitened-inputs.md).
     ///
     /// # Errors
     /// As [`Windows::batch`].
@@ -591,6 +599,10 @@ mod tests {
         n.check().unwrap();
         let bad = Normaliser { std: vec![-1.0], ..n };
         assert!(bad.check().is_err());
+        // So does a window configuration saved before the field existed; a new one is whitened.
+        let cfg: WindowConfig = serde_json::from_str(r#"{"len":100,"stride":10}"#).unwrap();
+        assert_eq!(cfg.features, Features::Raw);
+        assert_eq!(WindowConfig::default().features, Features::WhitenedLog);
     }
 
     #[test]

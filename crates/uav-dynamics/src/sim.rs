@@ -411,6 +411,11 @@ impl SensorModel {
     }
 }
 
+/// Most IMU steps one simulated flight may hold: 10 M, 13.9 hours at the default 200 Hz and
+/// about 2 GB of samples and truth. A longer flight is a configuration error, not an
+/// allocation the process cannot make.
+pub const MAX_IMU_STEPS: u64 = 10_000_000;
+
 /// Simulate a flight along `traj` for `duration_s` seconds (IMU steps `t_k = k/f_IMU ≤
 /// duration_s`) with the sensor models of `cfg`, all noise drawn from `seed`.
 ///
@@ -428,6 +433,15 @@ pub fn simulate(cfg: &SimConfig, traj: &dyn Trajectory, duration_s: f64, seed: u
         });
     }
     let n = valid.n_steps(duration_s);
+    if n > MAX_IMU_STEPS {
+        return Err(Error::Config {
+            field: "duration_s",
+            msg: format!(
+                "{duration_s} s at {} Hz is {n} IMU steps, more than the {MAX_IMU_STEPS} one flight may hold",
+                cfg.imu_rate_hz
+            ),
+        });
+    }
     let cap = usize::try_from(n).unwrap_or(usize::MAX);
     let slow = |ratio: u64| usize::try_from(n / ratio + 1).unwrap_or(0);
     let mut streams = SensorStreams {

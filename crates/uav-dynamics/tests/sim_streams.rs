@@ -149,4 +149,9 @@ fn bad_config_is_a_named_error() {
         simulate(&SimConfig::default(), &traj, f64::NAN, 0),
         Err(Error::Config { field: "duration_s", .. })
     ));
+    // A flight longer than the step budget is refused before anything is allocated.
+    for duration_s in [1e5, 1e9] {
+        let e = simulate(&SimConfig::default(), &traj, duration_s, 0).unwrap_err();
+        assert!(e.to_string().contains("more than the 10000000 one flight may hold"), "{e}");
+    }
 }

@@ -213,10 +213,10 @@ pub fn make_detector(
     let cfgs = MethodConfigs::quick().seeded(seed);
     let fitted = fit(method, &cfgs, &train, &valid).map_err(|e| run(&e))?;
     eprintln!(
-        "fitted {} on {cell} (gps_x gps_y gps_z) in {:.1} s, threshold {:.4}",
+        "fitted {} on {cell} (gps_x gps_y gps_z) in {:.1} s, streaming threshold {:.4}",
         method.name(),
         fitted.train_s,
-        fitted.detector.threshold()
+        fitted.detector.streaming_threshold()
     );
     Ok(FusionDetector::Batch(fitted.detector))
 }

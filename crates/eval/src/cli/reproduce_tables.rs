@@ -7,6 +7,11 @@ use std::path::PathBuf;
 use crate::cli::CliError;
 use crate::reproduce::{MatrixConfig, Options, parse_cell, reproduce, table_cells};
 use crate::runner::Method;
+use crate::table::Cell;
+
+/// Most seeds one invocation accepts: every seed simulates its own paper-scale datasets and
+/// trains every method again (about 10 minutes and 0.5 GB of dataset cache per seed on 2 cores).
+pub const MAX_SEEDS: u64 = 100;
 
 /// Options of `reproduce-tables`.
 #[derive(Debug, clap::Args)]
@@ -37,6 +42,32 @@ pub struct Args {
     pub no_progress: bool,
 }
 
+/// The cells, methods and seed count the options select, checked before any work starts:
+/// every name known, none given twice, `1 ≤ --seeds ≤` [`MAX_SEEDS`].
+fn selection(args: &Args) -> Result<(Vec<Cell>, Vec<Method>, u64), String> {
+    let cells: Vec<Cell> = if args.cells.is_empty() {
+        table_cells()
+    } else {
+        args.cells.iter().map(|c| parse_cell(c)).collect::<Result<_, _>>().map_err(|e| e.to_string())?
+    };
+    let methods: Vec<Method> = if args.methods.is_empty() {
+        Method::ALL.to_vec()
+    } else {
+        args.methods.iter().map(|m| Method::parse(m)).collect::<Result<_, _>>().map_err(|e| e.to_string())?
+    };
+    if let Some((i, c)) = cells.iter().enumerate().find(|(i, c)| cells[..*i].contains(c)) {
+        return Err(format!("--cells names {} twice ({})", c.slug(), args.cells.get(i).map_or("", String::as_str)));
+    }
+    if let Some((i, m)) = methods.iter().enumerate().find(|(i, m)| methods[..*i].contains(m)) {
+        return Err(format!("--methods names {} twice ({})", m.name(), args.methods.get(i).map_or("", String::as_str)));
+    }
+    let seeds = args.seeds.unwrap_or(if args.quick { 1 } else { 3 });
+    if !(1..=MAX_SEEDS).contains(&seeds) {
+        return Err(format!("--seeds must be between 1 and {MAX_SEEDS}, got {seeds}"));
+    }
+    Ok((cells, methods, seeds))
+}
+
 /// Runs the matrix and prints the files written.
 ///
 /// # Errors
@@ -49,20 +80,7 @@ pub fn run(args: &Args) -> Result<(), CliError> {
             .map_err(|e| CliError::Config { path: path.clone(), msg: e.to_string() })?,
         None => base,
     };
-    let cells = if args.cells.is_empty() {
-        table_cells()
-    } else {
-        args.cells.iter().map(|c| parse_cell(c)).collect::<Result<_, _>>().map_err(|e| input(e.to_string()))?
-    };
-    let methods = if args.methods.is_empty() {
-        Method::ALL.to_vec()
-    } else {
-        args.methods.iter().map(|m| Method::parse(m)).collect::<Result<_, _>>().map_err(|e| input(e.to_string()))?
-    };
-    let seeds = args.seeds.unwrap_or(if args.quick { 1 } else { 3 });
-    if seeds == 0 {
-        return Err(input("--seeds must be at least 1".into()));
-    }
+    let (cells, methods, seeds) = selection(args).map_err(input)?;
     let opts = Options {
         config,
         quick: args.quick,
@@ -77,4 +95,35 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         println!("{}", f.display());
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(cells: &[&str], methods: &[&str], seeds: Option<u64>) -> Args {
+        Args {
+            quick: false,
+            seeds,
+            cells: cells.iter().map(|s| (*s).to_owned()).collect(),
+            methods: methods.iter().map(|s| (*s).to_owned()).collect(),
+            out: PathBuf::from("unused"),
+            config: None,
+            no_progress: true,
+        }
+    }
+
+    #[test]
+    fn the_selection_is_checked_before_any_work() {
+        let (cells, methods, seeds) = selection(&args(&["m1-exponential-a1"], &["cusum", "quadformer"], None)).unwrap();
+        assert_eq!((cells.len(), methods, seeds), (1, vec![Method::Cusum, Method::QuadFormer], 3));
+        let e = selection(&args(&["m1-exponential-a1", "m1-exponential-a1"], &[], None)).unwrap_err();
+        assert!(e.contains("--cells names m1-exponential-a1 twice"), "{e}");
+        let e = selection(&args(&[], &["cusum", "CUSUM"], None)).unwrap_err();
+        assert!(e.contains("--methods names CUSUM twice (CUSUM)"), "{e}");
+        for bad in [0, MAX_SEEDS + 1, 4_294_967_296] {
+            let e = selection(&args(&[], &[], Some(bad))).unwrap_err();
+            assert!(e.contains("--seeds must be between 1 and 100"), "{e}");
+        }
+    }
 }

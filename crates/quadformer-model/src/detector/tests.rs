@@ -178,6 +178,11 @@ fn online_matches_batch_on_one_window_and_checks_input() {
     assert_eq!(last.alarm, last.score > det.stream_threshold());
     let bad = ResidueStep { t: 0.0, r_k: &[1.0, 2.0], s_k: &[1.0, 0.0, 0.0, 1.0], nis: 5.0 };
     assert!(matches!(online.update(&bad), Err(DetectError::Residue(_))));
+    let short_s = ResidueStep { t: 0.0, r_k: &[1.0, 2.0, 3.0], s_k: &[1.0, 0.0, 0.0, 1.0], nis: 5.0 };
+    assert!(matches!(online.update(&short_s), Err(DetectError::Residue(ResidueError::StepDim { what: "S_k", .. }))));
+    let eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    let nan_nis = ResidueStep { t: 0.0, r_k: &[1.0, 2.0, 3.0], s_k: &eye, nis: f64::NAN };
+    assert!(matches!(online.update(&nan_nis), Err(DetectError::Residue(ResidueError::NonFinite { what: "nis", .. }))));
     online.reset();
 }
 
