@@ -50,16 +50,6 @@ impl Features {
         }
     }
 
-    /// Feature names for the residue channels `channels`.
-    pub fn names(self, channels: &[String]) -> Vec<String> {
-        match self {
-            Features::Raw => channels.to_vec(),
-            Features::Whitened | Features::WhitenedLog => {
-                channels.iter().map(|c| format!("{c}/sigma")).chain(std::iter::once("sqrt_nis".to_string())).collect()
-            }
-        }
-    }
-
     /// Writes the features of one step (`r_k`, row-major `S_k`, `NIS_k`) into `out`
     /// (length [`Features::dim`]). A non-positive variance counts as 1.
     pub fn compute(self, r_k: &[f64], s_k: &[f64], nis: f64, out: &mut [f64]) {
@@ -588,7 +578,6 @@ mod tests {
         for (l, w) in log.iter().zip(&out) {
             assert!((l - w.signum() * w.abs().ln_1p()).abs() < 1e-12);
         }
-        assert_eq!(Features::WhitenedLog.names(s.channels()), ["a/sigma", "b/sigma", "sqrt_nis"]);
     }
 
     #[test]
