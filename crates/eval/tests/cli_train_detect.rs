@@ -182,6 +182,20 @@ fn quadformer_round_trip_finds_attacks_and_rejects_a_corrupt_checkpoint() {
         assert!(model.join(f).is_file(), "{f}");
     }
     assert_better_than_chance(&detect_all(tmp.path(), &ds, &model));
+    // `--streaming` scores every step from the past alone, at the streaming threshold saved in
+    // the checkpoint, as `fuse` runs the model: same rows, other scores.
+    let input = &files(&ds.join("test"))[0];
+    let (batch_out, stream_out) = (tmp.path().join("batch.csv"), tmp.path().join("stream.csv"));
+    ok(&["detect", "--model", s(&model), "--in", s(input), "--out", s(&batch_out)]);
+    let log = ok(&["detect", "--model", s(&model), "--in", s(input), "--out", s(&stream_out), "--streaming"]);
+    assert!(log.contains("QUADFormer (streaming)"), "{log}");
+    let checkpoint: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(model.join("quadformer.json")).unwrap()).unwrap();
+    let stream_threshold = checkpoint["stream_threshold"].as_f64().unwrap();
+    assert!(log.contains(&format!("threshold {stream_threshold:.6}")), "{log}");
+    let (batch, stream) = (std::fs::read_to_string(&batch_out).unwrap(), std::fs::read_to_string(&stream_out).unwrap());
+    assert_eq!(batch.lines().count(), stream.lines().count());
+    assert_ne!(batch, stream);
 
     // Flip one byte of the weights: the checkpoint's SHA-256 check names the file.
     let input = files(&ds.join("test"))[0].clone();
@@ -353,12 +367,13 @@ fn detect_help() {
         expect_test::expect![[r#"
         Score a residue CSV with a trained model directory and write per-step scores and alarms
 
-        Usage: quadformer detect --model <MODEL_DIR> --in <FILE.csv> --out <ALARMS.csv>
+        Usage: quadformer detect [OPTIONS] --model <MODEL_DIR> --in <FILE.csv> --out <ALARMS.csv>
 
         Options:
               --model <MODEL_DIR>  Model directory written by `quadformer train`
               --in <FILE.csv>      Residue CSV to score (its channels must equal the model's training channels)
               --out <ALARMS.csv>   Output alarm CSV: t, score, alarm[, label] (written atomically)
+              --streaming          Score as the streaming detector does (each step from itself and earlier steps only, at the streaming threshold), as `quadformer fuse` runs it
           -h, --help               Print help
           -V, --version            Print version
 

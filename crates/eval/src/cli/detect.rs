@@ -8,6 +8,11 @@
 //! validation), and `label` when the input has one; then precision, recall and F1 of the alarms
 //! (eq:precision, eq:recall, eq:F1; per step, no point adjustment, decision 060) are printed to stderr.
 //!
+//! With `--streaming` every step is scored as the streaming detector of `quadformer fuse` scores
+//! it (from that step and the ones before it only, `Detector::score_streaming`) and alarms at the
+//! streaming threshold chosen on validation; without it a step's score may use later steps
+//! (QUADFormer averages every window that covers it).
+//!
 //! QUADFormer is loaded from its checkpoint (size, SHA-256, tensor names and shapes checked);
 //! the other methods are re-fitted from the training data recorded in the model directory
 //! (decision 081), and a warning is printed if the re-fitted threshold differs from the one
@@ -43,6 +48,10 @@ pub struct Args {
     /// Output alarm CSV: t, score, alarm[, label] (written atomically).
     #[arg(long, value_name = "ALARMS.csv")]
     pub out: PathBuf,
+    /// Score as the streaming detector does (each step from itself and earlier steps only, at
+    /// the streaming threshold), as `quadformer fuse` runs it.
+    #[arg(long)]
+    pub streaming: bool,
 }
 
 /// Runs `quadformer detect`.
@@ -56,20 +65,22 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     check_same_channels(&args.input, &manifest.channels, input.series().channels())?;
     let detector = load_detector(&args.model, &manifest)?;
     check_same_channels(&args.input, detector.channels(), input.series().channels())?;
-    let scores = detector.score(input.series()).map_err(|e| CliError::Input {
+    let scored = if args.streaming { detector.score_streaming(input.series()) } else { detector.score(input.series()) };
+    let scores = scored.map_err(|e| CliError::Input {
         path: args.input.clone(),
         msg: format!("{} cannot score it: {e}", manifest.method.name()),
     })?;
-    let threshold = detector.threshold();
+    let threshold = if args.streaming { detector.streaming_threshold() } else { detector.threshold() };
     let alarms: Vec<bool> = scores.iter().map(|&s| s > threshold).collect();
     let labels = input.labels();
     write_alarms(&args.out, input.series().t(), &scores, &alarms, labels)?;
 
     let n_alarms = alarms.iter().filter(|&&a| a).count();
     eprintln!(
-        "wrote {}: {} on {} steps, {n_alarms} alarms (threshold {threshold:.6})",
+        "wrote {}: {}{} on {} steps, {n_alarms} alarms (threshold {threshold:.6})",
         args.out.display(),
         manifest.method.name(),
+        if args.streaming { " (streaming)" } else { "" },
         scores.len()
     );
     if let Some(labels) = labels {
