@@ -205,7 +205,6 @@ impl MethodConfigs {
         c.quadformer = QuadFormerConfig::tiny(50);
         c.quadformer.train.epochs = 2;
         c.quadformer.train.max_windows_per_epoch = Some(256);
-        c.quadformer.train.progress = false;
         c.quadformer.train.labelled_share = Some(0.5);
         c.quadformer.train.mirror = true;
         for nn in [&mut c.cnn.0, &mut c.lstm.0] {

@@ -398,13 +398,6 @@ impl QuadFormerDetector {
         self.chosen
     }
 
-    /// The threshold of the streaming detector, chosen on the validation split's streaming
-    /// scores of the chosen mode (a window that ends at the step sees no future, so its scores
-    /// are distributed differently from the batch scores).
-    pub fn stream_threshold(&self) -> f64 {
-        self.stream_threshold
-    }
-
     /// Every mode's validation threshold and F1 (ablation table).
     pub fn mode_results(&self) -> &[ModeResult] {
         &self.mode_results
@@ -456,6 +449,9 @@ impl Detector for QuadFormerDetector {
         self.chosen.threshold
     }
 
+    /// Chosen at `fit` on the validation split's streaming scores of the chosen mode: a window
+    /// that ends at the step sees no later step, so its scores are distributed differently from
+    /// the batch scores.
     fn streaming_threshold(&self) -> f64 {
         self.stream_threshold
     }

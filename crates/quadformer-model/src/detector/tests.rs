@@ -175,7 +175,7 @@ fn online_matches_batch_on_one_window_and_checks_input() {
     }
     let last = last.unwrap();
     assert!((last.score - batch[L - 1]).abs() < 1e-6, "{} vs {}", last.score, batch[L - 1]);
-    assert_eq!(last.alarm, last.score > det.stream_threshold());
+    assert_eq!(last.alarm, last.score > det.streaming_threshold());
     let bad = ResidueStep { t: 0.0, r_k: &[1.0, 2.0], s_k: &[1.0, 0.0, 0.0, 1.0], nis: 5.0 };
     assert!(matches!(online.update(&bad), Err(DetectError::Residue(_))));
     let short_s = ResidueStep { t: 0.0, r_k: &[1.0, 2.0, 3.0], s_k: &[1.0, 0.0, 0.0, 1.0], nis: 5.0 };
@@ -209,8 +209,7 @@ fn the_streaming_threshold_is_chosen_on_validation_streaming_scores_and_saved() 
     let streamed: Vec<(Vec<f64>, &[bool])> =
         valid.labelled().map(|(s, l)| (det.score_streaming(s).unwrap(), l)).collect();
     let (want, _) = best_f1_threshold(streamed.iter().map(|(s, l)| (s.as_slice(), *l))).unwrap();
-    assert_eq!(det.stream_threshold(), want);
-    assert_eq!(Detector::streaming_threshold(det), want);
+    assert_eq!(det.streaming_threshold(), want);
     // The streaming scores are the online detector's.
     let f = flight(3 * L, 33, 4.0, false);
     let mut online = det.online();
@@ -221,13 +220,13 @@ fn the_streaming_threshold_is_chosen_on_validation_streaming_scores_and_saved() 
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
     det.save(&path).unwrap();
-    assert_eq!(QuadFormerDetector::load(&path).unwrap().stream_threshold(), want);
+    assert_eq!(QuadFormerDetector::load(&path).unwrap().streaming_threshold(), want);
     // A manifest written before streaming thresholds existed streams at the batch threshold.
     let text = std::fs::read_to_string(&path).unwrap();
     let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
     json.as_object_mut().unwrap().remove("stream_threshold");
     std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
-    assert_eq!(QuadFormerDetector::load(&path).unwrap().stream_threshold(), det.threshold());
+    assert_eq!(QuadFormerDetector::load(&path).unwrap().streaming_threshold(), det.threshold());
 }
 
 #[test]
