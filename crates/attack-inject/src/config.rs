@@ -27,11 +27,15 @@ pub enum AttackKind {
     Freeze,
     /// Random noise injection: an independent zero-mean Gaussian offset on every sample.
     Noise,
+    /// Oscillating FDI: `d(t) = A·sin(2π f (t − t0))`, an offset that swings through zero so a
+    /// memoryless gate sees it only near its peaks.
+    Oscillating,
 }
 
 impl AttackKind {
     /// All kinds, in table order.
-    pub const ALL: [Self; 5] = [Self::Sparse, Self::Persistent, Self::Replay, Self::Freeze, Self::Noise];
+    pub const ALL: [Self; 6] =
+        [Self::Sparse, Self::Persistent, Self::Replay, Self::Freeze, Self::Noise, Self::Oscillating];
 
     /// Short stable name used in file names and tables (`"sparse"`, `"persistent"`, …).
     #[must_use]
@@ -42,6 +46,7 @@ impl AttackKind {
             Self::Replay => "replay",
             Self::Freeze => "freeze",
             Self::Noise => "noise",
+            Self::Oscillating => "oscillating",
         }
     }
 }
@@ -99,6 +104,8 @@ pub struct DurationsConfig {
     pub freeze_s: [f64; 2],
     /// Noise-injection interval length. Default `[1.0, 5.0]` s (choice, burst-like).
     pub noise_s: [f64; 2],
+    /// Oscillating-attack interval length. Default `[10.0, 40.0]` s (persistent, as Attack II).
+    pub oscillating_s: [f64; 2],
 }
 
 impl Default for DurationsConfig {
@@ -109,6 +116,7 @@ impl Default for DurationsConfig {
             replay_s: [3.0, 15.0],
             freeze_s: [2.0, 10.0],
             noise_s: [1.0, 5.0],
+            oscillating_s: [10.0, 40.0],
         }
     }
 }
@@ -123,6 +131,7 @@ impl DurationsConfig {
             AttackKind::Replay => self.replay_s,
             AttackKind::Freeze => self.freeze_s,
             AttackKind::Noise => self.noise_s,
+            AttackKind::Oscillating => self.oscillating_s,
         }
     }
 }
@@ -156,6 +165,16 @@ pub struct AttackConfig {
     /// Default 0.5 (both shapes equally, DESIGN.md "constant bias or slow ramp").
     #[serde(default = "default_ramp_probability")]
     pub ramp_probability: f64,
+    /// Ramp slope range `[min, max]` in m/s, drawn log-uniformly per ramp interval; the ramp's
+    /// end offset is then `slope · duration` along the drawn direction. `None` (default): the
+    /// end offset is drawn from `amplitude` like a bias. Drift spoofing is slow: PX4 issue
+    /// #27340 reports a ~5 m/s drift; estimation-and-detectors §5 gives 0.05–2 m/s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ramp_slope_mps: Option<[f64; 2]>,
+    /// Oscillation frequency range `[min, max]` in Hz of [`AttackKind::Oscillating`], drawn
+    /// uniformly per interval. Default `[0.1, 0.3]` around 0.2 Hz.
+    #[serde(default = "default_oscillation_hz")]
+    pub oscillation_hz: [f64; 2],
     /// Replay delay range `[min, max]` in seconds. Default `[1.0, 5.0]` around the 2 s of
     /// `gps_spoofer.py` (estimation-and-detectors.md §5).
     #[serde(default = "default_replay_delay_s")]
@@ -179,6 +198,9 @@ const fn default_gps_sigma_m() -> f64 {
 const fn default_ramp_probability() -> f64 {
     0.5
 }
+const fn default_oscillation_hz() -> [f64; 2] {
+    [0.1, 0.3]
+}
 const fn default_replay_delay_s() -> [f64; 2] {
     [1.0, 5.0]
 }
@@ -201,6 +223,8 @@ impl AttackConfig {
             direction: DirectionMode::default(),
             durations: DurationsConfig::default(),
             ramp_probability: default_ramp_probability(),
+            ramp_slope_mps: None,
+            oscillation_hz: default_oscillation_hz(),
             replay_delay_s: default_replay_delay_s(),
             warmup_s: default_warmup_s(),
             min_gap_s: default_min_gap_s(),
@@ -251,6 +275,11 @@ impl AttackConfig {
         range("durations.replay_s", self.durations.replay_s)?;
         range("durations.freeze_s", self.durations.freeze_s)?;
         range("durations.noise_s", self.durations.noise_s)?;
+        range("durations.oscillating_s", self.durations.oscillating_s)?;
+        if let Some(r) = self.ramp_slope_mps {
+            range("ramp_slope_mps", r)?;
+        }
+        range("oscillation_hz", self.oscillation_hz)?;
         range("replay_delay_s", self.replay_delay_s)?;
         let p = self.ramp_probability;
         if !(p.is_finite() && (0.0..=1.0).contains(&p)) {

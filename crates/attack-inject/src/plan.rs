@@ -43,6 +43,13 @@ pub enum AttackShape {
     },
     /// Freeze: the fix sent is the last clean fix at or before `t0`.
     Freeze,
+    /// Oscillating offset `d(t) = amplitude · sin(2π · freq_hz · (t − t0))`.
+    Oscillating {
+        /// Peak offset (metres, ENU).
+        amplitude: Vector3<f64>,
+        /// Oscillation frequency in Hz.
+        freq_hz: f64,
+    },
     /// Random noise injection: `d_k ~ N(0, (amplitude_m²/3)·I₃)` (RMS norm `amplitude_m`), drawn
     /// from a generator seeded by `(seed, t_k)` so it is reproducible online.
     Noise {
@@ -138,13 +145,27 @@ impl Sampler<'_> {
         }
     }
 
-    fn shape(&mut self) -> AttackShape {
+    /// The shape of an interval of `duration_s` seconds.
+    fn shape(&mut self, duration_s: f64) -> AttackShape {
         match self.cfg.kind {
             AttackKind::Sparse => AttackShape::Burst { offset: self.amplitude_m() * self.direction() },
             AttackKind::Persistent => {
                 let ramp = self.rng.random::<f64>() < self.cfg.ramp_probability;
                 let offset = self.amplitude_m() * self.direction();
-                if ramp { AttackShape::Ramp { offset_end: offset } } else { AttackShape::Bias { offset } }
+                match (ramp, self.cfg.ramp_slope_mps) {
+                    (false, _) => AttackShape::Bias { offset },
+                    (true, None) => AttackShape::Ramp { offset_end: offset },
+                    (true, Some([lo, hi])) => {
+                        // Log-uniform slope; the direction is the drawn offset's.
+                        let slope = self.uniform([lo.ln(), hi.ln()]).exp();
+                        let dir = offset.try_normalize(0.0).unwrap_or_else(Vector3::x);
+                        AttackShape::Ramp { offset_end: dir * (slope * duration_s) }
+                    }
+                }
+            }
+            AttackKind::Oscillating => {
+                let amplitude = self.amplitude_m() * self.direction();
+                AttackShape::Oscillating { amplitude, freq_hz: self.uniform(self.cfg.oscillation_hz) }
             }
             AttackKind::Replay => AttackShape::Replay { delay_s: self.uniform(self.cfg.replay_delay_s) },
             AttackKind::Freeze => AttackShape::Freeze,
@@ -181,9 +202,12 @@ impl AttackPlan {
                 AttackShape::Replay { delay_s } => delay_s.is_finite() && delay_s > 0.0,
                 AttackShape::Freeze => true,
                 AttackShape::Noise { amplitude_m, .. } => amplitude_m.is_finite() && amplitude_m >= 0.0,
+                AttackShape::Oscillating { amplitude, freq_hz } => {
+                    amplitude.iter().all(|v| v.is_finite()) && freq_hz.is_finite() && freq_hz > 0.0
+                }
             };
             if !shape_ok {
-                return Err(bad("shape parameters must be finite (replay delay > 0)"));
+                return Err(bad("shape parameters must be finite (replay delay and frequency > 0)"));
             }
             prev_t1 = iv.t1;
         }
@@ -256,7 +280,7 @@ impl AttackPlan {
         for (i, (&d, &cut)) in durations.iter().zip(&cuts).enumerate() {
             cursor += cut - prev_cut + if i > 0 { cfg.min_gap_s } else { 0.0 };
             prev_cut = cut;
-            let shape = s.shape();
+            let shape = s.shape(d);
             intervals.push(AttackInterval { t0: cursor, t1: cursor + d, shape });
             cursor += d;
         }
@@ -303,6 +327,9 @@ impl AttackPlan {
         let p = match iv.shape {
             AttackShape::Burst { offset } | AttackShape::Bias { offset } => clean.p + offset,
             AttackShape::Ramp { offset_end } => clean.p + offset_end * ((clean.t - iv.t0) / iv.duration_s()),
+            AttackShape::Oscillating { amplitude, freq_hz } => {
+                clean.p + amplitude * (std::f64::consts::TAU * freq_hz * (clean.t - iv.t0)).sin()
+            }
             AttackShape::Replay { delay_s } => match recorded_at(clean.t - delay_s) {
                 Some(p) => p,
                 None => return passthrough,

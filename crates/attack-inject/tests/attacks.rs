@@ -248,3 +248,50 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn ramp_slopes_stay_in_the_configured_range() {
+    let mut cfg = AttackConfig::new(AttackKind::Persistent);
+    cfg.ramp_probability = 1.0;
+    cfg.ramp_slope_mps = Some([0.1, 5.0]);
+    cfg.attacked_fraction = 0.5;
+    for seed in 0..20 {
+        let p = AttackPlan::sample(&cfg.check().unwrap(), 0.0, 600.0, seed).unwrap();
+        assert!(!p.intervals().is_empty());
+        for iv in p.intervals() {
+            let AttackShape::Ramp { offset_end } = iv.shape else { panic!("not a ramp: {:?}", iv.shape) };
+            let slope = offset_end.norm() / iv.duration_s();
+            assert!((0.1 - 1e-9..=5.0 + 1e-9).contains(&slope), "slope {slope}");
+        }
+    }
+    cfg.ramp_slope_mps = Some([0.0, 1.0]);
+    assert!(cfg.check().is_err(), "a zero slope bound is refused");
+}
+
+#[test]
+fn oscillating_offset_is_a_sine_from_the_interval_start() {
+    let gps = stream(400);
+    let amplitude = Vector3::new(6.0, 0.0, -2.0);
+    let plan = AttackPlan::from_intervals(vec![AttackInterval {
+        t0: 10.0,
+        t1: 30.0,
+        shape: AttackShape::Oscillating { amplitude, freq_hz: 0.25 },
+    }])
+    .unwrap();
+    let a = inject(&gps, &plan).unwrap();
+    for (k, g) in gps.iter().enumerate() {
+        let expected = if g.t > 10.0 && g.t <= 30.0 {
+            amplitude * (std::f64::consts::TAU * 0.25 * (g.t - 10.0)).sin()
+        } else {
+            Vector3::zeros()
+        };
+        assert_relative_eq!(a.offset[k], expected, epsilon = 1e-9);
+    }
+    // Sampled plans draw the frequency from its range.
+    let cfg = AttackConfig::new(AttackKind::Oscillating);
+    let p = AttackPlan::sample(&cfg.check().unwrap(), 0.0, 600.0, 3).unwrap();
+    for iv in p.intervals() {
+        let AttackShape::Oscillating { freq_hz, .. } = iv.shape else { panic!("not oscillating") };
+        assert!((0.1..=0.3).contains(&freq_hz));
+    }
+}

@@ -503,6 +503,29 @@ impl Estimator {
         }
     }
 
+    /// Move the position estimate onto `p` (metres, ENU) without touching `P`: the position
+    /// reset PX4 EKF2 performs onto GNSS after a long rejection (`resetHorizontalPositionToGnss`).
+    /// Model II's keyframe position moves by the same offset, so the pending VO increment still
+    /// reads relative to the reset position.
+    ///
+    /// # Errors
+    /// [`FilterError::NonFiniteState`] for a non-finite `p`.
+    pub fn reset_position(&mut self, p: &Vector3<f64>) -> Result<(), FilterError> {
+        if !p.iter().all(|v| v.is_finite()) {
+            return Err(FilterError::NonFiniteState { t: self.t(), what: "reset position" });
+        }
+        match &mut self.filter {
+            Filter::One(f) => f.ekf_mut().map_state(|x| x.fixed_rows_mut::<3>(IDX_P).copy_from(p)),
+            Filter::Two(f) => f.ekf_mut().map_state(|x| {
+                let delta = p - x.fixed_rows::<3>(IDX_P);
+                x.fixed_rows_mut::<3>(IDX_P).copy_from(p);
+                let pf = x.fixed_rows::<3>(uav_dynamics::model2::IDX_PF) + delta;
+                x.fixed_rows_mut::<3>(uav_dynamics::model2::IDX_PF).copy_from(&pf);
+            }),
+        }
+        Ok(())
+    }
+
     /// The current estimate (first 15 states) with covariance blocks.
     #[must_use]
     pub fn estimate(&self) -> StateEstimate {

@@ -15,6 +15,10 @@
 //! 3. The filter updates with VO and, unless excluded, the GPS fix (alg:alg3 lines 2–4). While
 //!    excluded the GPS innovation is still computed against the prior, so the detector keeps
 //!    watching the stream.
+//! 4. Optionally, as PX4 EKF2 does (`reset_timeout_max` = 7 s in `EKF/common.h`), GPS that has
+//!    been excluded for [`ResilientConfig::reset_after_s`] is re-admitted with a position
+//!    reset onto the fix ([`Estimator::reset_position`]), so the estimate jumps onto whatever
+//!    the receiver reports.
 //!
 //! Positions in local ENU metres, times in seconds.
 
@@ -52,7 +56,8 @@ pub struct ResilientConfig {
     /// (paper sec. "Real-world Experiment": inference takes about 1 s on the edge device).
     pub latency_s: f64,
     /// Time without alarms before GPS is re-admitted, seconds. Default 1.0 (PX4 re-accepts GNSS
-    /// after max(1 s, EKF2_REQ_GPS_H/10) of passing checks, gnss_checks.cpp).
+    /// after max(1 s, EKF2_REQ_GPS_H/10) of passing checks, gnss_checks.cpp). With 0 every
+    /// alarmed fix is excluded and the next fix without an alarm is fused again.
     pub hold_s: f64,
     /// Variance added to each position axis on re-admission, m². Default 1.0 (σ = 1 m, twice
     /// the GPS σ; docs/decisions/023-resilient-fusion.md).
@@ -65,6 +70,11 @@ pub struct ResilientConfig {
     /// (docs/decisions/023-resilient-fusion.md).
     #[serde(default)]
     pub rollback: Rollback,
+    /// Exclusion time after which GPS is re-admitted with a position reset onto the fix
+    /// (module doc, step 4), seconds. Default `None`: exclusion lasts while alarms do. PX4
+    /// EKF2 behaves as `Some(7.0)`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reset_after_s: Option<f64>,
 }
 
 impl Default for ResilientConfig {
@@ -75,6 +85,7 @@ impl Default for ResilientConfig {
             readmit_inflation_m2: 1.0,
             detector_channels: GPS_CHANNELS.iter().map(|s| (*s).to_string()).collect(),
             rollback: Rollback::default(),
+            reset_after_s: None,
         }
     }
 }
@@ -93,6 +104,14 @@ impl ResilientConfig {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(FusionError::Config { field, msg: format!("must be finite and non-negative, got {v}") });
             }
+        }
+        if let Some(v) = self.reset_after_s
+            && !(v.is_finite() && v > 0.0)
+        {
+            return Err(FusionError::Config {
+                field: "reset_after_s",
+                msg: format!("must be finite and positive, got {v}"),
+            });
         }
         if self.detector_channels.is_empty() {
             return Err(FusionError::Config {
@@ -122,7 +141,7 @@ enum Event {
 }
 
 /// What happened at one measurement time.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct FusionStep {
     /// Time in seconds.
     pub t: f64,
@@ -132,6 +151,12 @@ pub struct FusionStep {
     pub gps_excluded: bool,
     /// Whether a GPS fix was fused at this step.
     pub gps_fused: bool,
+    /// Whether GPS was re-admitted at this step with a position reset onto the fix.
+    pub reset: bool,
+    /// The filter's innovation of this step against the prior, every channel of the group
+    /// (also a GPS fix that was not fused): the residue a detector trained on this estimator's
+    /// output sees.
+    pub outcome: Option<UpdateOutcome>,
 }
 
 /// The resilient estimator: a Model II (or Model I) EKF, an optional online detector and the
@@ -148,6 +173,7 @@ pub struct ResilientEstimator<'d> {
     alarm_times: Vec<f64>,
     buffer: VecDeque<Event>,
     n_rollbacks: usize,
+    n_resets: usize,
 }
 
 impl std::fmt::Debug for ResilientEstimator<'_> {
@@ -186,6 +212,7 @@ impl<'d> ResilientEstimator<'d> {
             alarm_times: Vec::new(),
             buffer: VecDeque::new(),
             n_rollbacks: 0,
+            n_resets: 0,
         })
     }
 
@@ -216,6 +243,12 @@ impl<'d> ResilientEstimator<'d> {
     #[must_use]
     pub fn n_rollbacks(&self) -> usize {
         self.n_rollbacks
+    }
+
+    /// How many times GPS was re-admitted with a position reset ([`ResilientConfig::reset_after_s`]).
+    #[must_use]
+    pub fn n_resets(&self) -> usize {
+        self.n_resets
     }
 
     /// Whether inputs must be buffered for a rollback.
@@ -277,6 +310,17 @@ impl<'d> ResilientEstimator<'d> {
             }
         }
         self.apply_decisions(t)?;
+        let reset = meas.gps.is_some() && self.reset_due(t);
+        if reset {
+            // Step 4 of the module doc: re-admit GPS with a position reset onto this fix.
+            if let Some(t0) = self.excluded_since.take() {
+                self.excluded_intervals.push((t0, t));
+            }
+            if let (Some(est), Some(p)) = (self.est.as_mut(), meas.gps) {
+                est.reset_position(&p)?;
+            }
+            self.n_resets += 1;
+        }
         let excluded = self.excluded_since.is_some();
         let fusion = if excluded { GpsFusion::Skip } else { GpsFusion::Fuse };
         if buffering {
@@ -295,21 +339,31 @@ impl<'d> ResilientEstimator<'d> {
             }
         }
         let Some(est) = self.est.as_mut() else { return Ok(None) };
-        let out = est.measure(meas, fusion)?;
-        let gps_fused = out.is_some_and(|o| o.gps_fused);
-        Ok(Some(FusionStep { t, decision, gps_excluded: excluded, gps_fused }))
+        let outcome = est.measure(meas, fusion)?;
+        let gps_fused = outcome.as_ref().is_some_and(|o| o.gps_fused);
+        Ok(Some(FusionStep { t, decision, gps_excluded: excluded, gps_fused, reset, outcome }))
+    }
+
+    /// Whether GPS has been excluded for [`ResilientConfig::reset_after_s`] at `t`.
+    fn reset_due(&self, t: f64) -> bool {
+        match (self.cfg.reset_after_s, self.excluded_since) {
+            (Some(after), Some(t0)) => t - t0 >= after - 1e-9,
+            _ => false,
+        }
     }
 
     /// Apply every decision available at `t` and run the hysteresis.
     fn apply_decisions(&mut self, t: f64) -> Result<()> {
         // Tolerance: decision times are sums of sample times and the latency.
         let eps = 1e-9;
+        let mut alarm_now = false;
         while let Some(p) = self.pending.front().copied() {
             if p.t_avail > t + eps {
                 break;
             }
             self.pending.pop_front();
             if p.alarm {
+                alarm_now = true;
                 self.last_alarm_avail = p.t_avail;
                 if self.excluded_since.is_none() {
                     // alg:alg3 line 4: X ← Fuse(camera, IMU).
@@ -320,7 +374,10 @@ impl<'d> ResilientEstimator<'d> {
                 }
             }
         }
+        // A step whose own decision alarms is never the one that re-admits (this matters for
+        // `hold_s = 0`, where the next step without an alarm re-admits).
         if let Some(t0) = self.excluded_since
+            && !alarm_now
             && t - self.last_alarm_avail >= self.cfg.hold_s - eps
         {
             // Re-admission: inflate the position covariance so GPS re-converges the estimate.

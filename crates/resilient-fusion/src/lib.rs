@@ -28,6 +28,8 @@
 
 pub mod error;
 pub mod estimator;
+pub mod gates;
+pub mod recorded;
 pub mod scenario;
 
 pub use error::{FusionError, Result};
