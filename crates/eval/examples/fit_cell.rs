@@ -42,8 +42,16 @@ fn main() -> Result<()> {
             other => bail!("unknown option {other}"),
         }
     }
-    let opts =
-        Options { config, quick: false, seeds: 1, cells: vec![cell], methods: vec![method], out, progress: false };
+    let opts = Options {
+        config,
+        quick: false,
+        seeds: 1,
+        cells: vec![cell],
+        methods: vec![method],
+        out,
+        progress: false,
+        stages: eval::reproduce::Stages::Tables,
+    };
     let data = load_cell(cell, seed, &opts)?;
     let train = data.train_with_labelled_fraction(opts.config.labelled_fraction)?;
     let (valid, test) = (data.valid()?, data.test()?);

@@ -45,9 +45,13 @@ use ekf_residue::{FilterError, LabelledResidues, LabelledSeries, ResidueError, R
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
+use resilient_fusion::estimator::ResilientConfig;
+use resilient_fusion::gates::Oracle;
+use resilient_fusion::recorded::fly_recorded;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use uav_dynamics::noise::{NoiseConfig, NoiseShape};
+use uav_dynamics::sensors::Flight;
 use uav_dynamics::sim::{SimConfig, simulate};
 use uav_dynamics::trajectory::{RandomRoute, RandomRouteConfig};
 
@@ -130,6 +134,17 @@ pub enum DatasetError {
         #[source]
         source: std::io::Error,
     },
+    /// Flying one flight through the protected estimator failed.
+    #[error("{split} flight {index}: protected estimator failed: {source}")]
+    Fusion {
+        /// Split of the flight.
+        split: Split,
+        /// Index of the flight in its split.
+        index: usize,
+        /// The estimator's error.
+        #[source]
+        source: resilient_fusion::FusionError,
+    },
     /// Encoding the dataset failed.
     #[error("encoding dataset: {0}")]
     Encode(String),
@@ -209,6 +224,26 @@ impl SplitSteps {
     }
 }
 
+/// Which estimator produces a dataset's residues.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ResidueProtocol {
+    /// The EKF fuses every fix, attacked or not (Tables I and II, the paper's protocol).
+    #[default]
+    OpenLoop,
+    /// The resilient estimator (alg:alg3) with GPS excluded exactly on attacked fixes (an
+    /// oracle detector at latency 0, hold 0): the residues a detector sees in the closed loop
+    /// when it protects the estimate, with labels that agree with them
+    /// (docs/decisions/091-closed-loop.md).
+    Protected,
+}
+
+impl ResidueProtocol {
+    const fn is_open_loop(&self) -> bool {
+        matches!(self, Self::OpenLoop)
+    }
+}
+
 /// Everything that defines one dataset (one matrix cell at one seed).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -233,6 +268,10 @@ pub struct DatasetConfig {
     pub labelled_fraction: f64,
     /// Seed of the whole dataset.
     pub seed: u64,
+    /// Estimator of the residues. Default [`ResidueProtocol::OpenLoop`] (left out of the cache
+    /// key then, so open-loop datasets keep their keys).
+    #[serde(default, skip_serializing_if = "ResidueProtocol::is_open_loop")]
+    pub protocol: ResidueProtocol,
 }
 
 impl DatasetConfig {
@@ -253,6 +292,7 @@ impl DatasetConfig {
             flight_duration_s: 150.0,
             labelled_fraction: 0.1,
             seed: 0,
+            protocol: ResidueProtocol::OpenLoop,
         }
     }
 
@@ -795,15 +835,28 @@ pub fn align_labels(residue_t: &[f64], gps_t: &[f64], gps_labels: &[bool]) -> Ve
         .collect()
 }
 
-/// Simulate, attack and filter one flight.
-fn run_flight(cfg: &DatasetConfig, spec: &FlightSpec) -> Result<DatasetFlight> {
+/// One simulated flight before filtering: the clean sensor streams with the true state, and
+/// the attack plan drawn for it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedFlight {
+    /// Split of the flight.
+    pub split: Split,
+    /// Index within the split.
+    pub index: usize,
+    /// The clean flight (GPS not yet attacked).
+    pub flight: Flight,
+    /// The attacks drawn for its GPS stream.
+    pub plan: AttackPlan,
+}
+
+/// Simulate one flight and draw its attack plan.
+fn plan_flight(cfg: &DatasetConfig, spec: &FlightSpec) -> Result<(PlannedFlight, RandomRoute)> {
     let (split, index) = (spec.split, spec.index);
     let sim_err = |source| DatasetError::Sim { split, index, source };
     let attack_err = |source| DatasetError::Attack { split, index, source };
     let route_cfg = RandomRouteConfig { duration_s: spec.duration_s, ..cfg.route };
     let route = RandomRoute::new(&route_cfg, spec.route_seed).map_err(sim_err)?;
-    let mut flight = simulate(&cfg.sim, &route, spec.duration_s, spec.sim_seed).map_err(sim_err)?;
-
+    let flight = simulate(&cfg.sim, &route, spec.duration_s, spec.sim_seed).map_err(sim_err)?;
     let gps = &flight.streams.gps;
     let (t_start, t_end) = match (gps.first(), gps.last()) {
         (Some(a), Some(b)) if b.t > a.t => (a.t, b.t),
@@ -811,17 +864,38 @@ fn run_flight(cfg: &DatasetConfig, spec: &FlightSpec) -> Result<DatasetFlight> {
     };
     let attack_cfg = cfg.attack.check().map_err(attack_err)?;
     let plan = AttackPlan::sample(&attack_cfg, t_start, t_end, spec.attack_seed).map_err(attack_err)?;
-    let attacked = inject(gps, &plan).map_err(attack_err)?;
-    let gps_t: Vec<f64> = attacked.gps.iter().map(|g| g.t).collect();
-    let n_gps_attacked = attacked.labels.iter().filter(|&&l| l).count();
-    flight.streams.gps = attacked.gps;
+    Ok((PlannedFlight { split, index, flight, plan }, route))
+}
 
-    let out = generate_residues(&flight.streams, &cfg.filter).map_err(|source| DatasetError::Filter {
-        split,
-        index,
-        source,
-    })?;
-    let labels = align_labels(out.series.t(), &gps_t, &attacked.labels);
+/// Simulate, attack and filter one flight.
+fn run_flight(cfg: &DatasetConfig, spec: &FlightSpec) -> Result<DatasetFlight> {
+    let (split, index) = (spec.split, spec.index);
+    let (planned, route) = plan_flight(cfg, spec)?;
+    let PlannedFlight { mut flight, plan, .. } = planned;
+    let (series, labels, n_gps, n_gps_attacked) = match cfg.protocol {
+        ResidueProtocol::OpenLoop => {
+            let attacked =
+                inject(&flight.streams.gps, &plan).map_err(|source| DatasetError::Attack { split, index, source })?;
+            let gps_t: Vec<f64> = attacked.gps.iter().map(|g| g.t).collect();
+            let n_gps_attacked = attacked.labels.iter().filter(|&&l| l).count();
+            flight.streams.gps = attacked.gps;
+            let out = generate_residues(&flight.streams, &cfg.filter).map_err(|source| DatasetError::Filter {
+                split,
+                index,
+                source,
+            })?;
+            let labels = align_labels(out.series.t(), &gps_t, &attacked.labels);
+            (out.series, labels, gps_t.len(), n_gps_attacked)
+        }
+        ResidueProtocol::Protected => {
+            let resilient = ResilientConfig { latency_s: 0.0, hold_s: 0.0, ..ResilientConfig::default() };
+            let oracle = Box::new(Oracle::new(plan.clone()));
+            let trace = fly_recorded(&flight, &plan, &cfg.filter, &resilient, Some(oracle))
+                .map_err(|source| DatasetError::Fusion { split, index, source })?;
+            let n_gps_attacked = trace.steps.iter().filter(|s| s.attacked).count();
+            (trace.residues, trace.labels, trace.steps.len(), n_gps_attacked)
+        }
+    };
     Ok(DatasetFlight {
         meta: FlightMeta {
             split,
@@ -833,12 +907,24 @@ fn run_flight(cfg: &DatasetConfig, spec: &FlightSpec) -> Result<DatasetFlight> {
             speed_mps: route.speed_mps(),
             altitude_m: route.altitude_m(),
             plan,
-            n_gps: gps_t.len(),
+            n_gps,
             n_gps_attacked,
         },
-        series: out.series,
+        series,
         labels,
     })
+}
+
+/// The flights of one split, simulated with their attack plans but not filtered: what a
+/// closed-loop experiment flies through its own estimator. They are the flights [`build`]
+/// makes for that split (the same seeds), in index order.
+///
+/// # Errors
+/// As [`build`].
+pub fn plan_split(cfg: &ValidDatasetConfig, split: Split) -> Result<Vec<PlannedFlight>> {
+    let cfg = cfg.get();
+    let specs: Vec<FlightSpec> = cfg.flight_specs().into_iter().filter(|s| s.split == split).collect();
+    specs.par_iter().map(|spec| plan_flight(cfg, spec).map(|(p, _)| p)).collect()
 }
 
 /// Build a dataset without touching the disk: every flight in parallel on the rayon pool, each

@@ -6,6 +6,7 @@
 #![warn(missing_docs)]
 
 pub mod cli;
+pub mod closed_loop;
 pub mod dataset;
 pub mod io;
 pub mod metrics;

@@ -440,6 +440,99 @@ pub fn statistic_plot(out_stem: &Path, title: &str, y_desc: &str, trace: Statist
 }
 
 // ---------------------------------------------------------------------------------------------
+// Position error over time, one line per detector.
+
+/// One detector's position error over one flight.
+#[derive(Debug, Clone, Copy)]
+pub struct ErrorSeries<'a> {
+    /// Detector name.
+    pub label: &'a str,
+    /// `(time s, error m)` points in time order.
+    pub points: &'a [(f64, f64)],
+}
+
+struct ErrorFigure<'a> {
+    title: &'a str,
+    series: &'a [ErrorSeries<'a>],
+    attacks: &'a [(f64, f64)],
+    x: Range<f64>,
+    y: Range<f64>,
+}
+
+impl Figure for ErrorFigure<'_> {
+    const NAME: &'static str = "position-error plot";
+
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> std::result::Result<(), String> {
+        let mut chart = ChartBuilder::on(root)
+            .caption(self.title, (FONT, 24))
+            .margin(15)
+            .x_label_area_size(45)
+            .y_label_area_size(65)
+            .build_cartesian_2d(self.x.clone(), self.y.clone())
+            .map_err(|e| e.to_string())?;
+        chart
+            .configure_mesh()
+            .x_desc("Time (s)")
+            .y_desc("Position error |p_hat - p| (m)")
+            .label_style((FONT, 15))
+            .draw()
+            .map_err(|e| e.to_string())?;
+        let shade = RGBColor(214, 39, 40).mix(0.15);
+        let mut first = true;
+        for &(a, b) in self.attacks {
+            let series = chart
+                .draw_series(std::iter::once(Rectangle::new([(a, self.y.start), (b, self.y.end)], shade.filled())))
+                .map_err(|e| e.to_string())?;
+            if first {
+                series.label("attack interval").legend(|(x, y)| {
+                    Rectangle::new([(x, y - 6), (x + 20, y + 6)], RGBColor(214, 39, 40).mix(0.3).filled())
+                });
+                first = false;
+            }
+        }
+        for (i, s) in self.series.iter().enumerate() {
+            let c = colour(i);
+            let clipped = s.points.iter().map(|&(t, e)| (t, e.min(self.y.end)));
+            chart
+                .draw_series(LineSeries::new(clipped, c.stroke_width(2)))
+                .map_err(|e| e.to_string())?
+                .label(s.label)
+                .legend(legend_line(c));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .label_font((FONT, 15))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// Position error over time, one line per detector, attack intervals shaded, to
+/// `<out_stem>.png` and `.svg`. Errors above `y_max_m` are drawn at `y_max_m`, so one runaway
+/// estimate does not flatten the others.
+///
+/// # Errors
+/// [`PlotError::Data`] when there is no finite point; [`PlotError::Draw`] or
+/// [`PlotError::Io`] when drawing or writing fails.
+pub fn error_time_plot(
+    out_stem: &Path,
+    title: &str,
+    series: &[ErrorSeries<'_>],
+    attacks: &[(f64, f64)],
+    y_max_m: f64,
+) -> Result<Vec<PathBuf>> {
+    let pts = || series.iter().flat_map(|s| s.points.iter());
+    let (Some((t0, t1)), Some((_, e1))) = (finite_range(pts().map(|p| p.0)), finite_range(pts().map(|p| p.1))) else {
+        return Err(PlotError::Data { figure: ErrorFigure::NAME, msg: "no finite point to draw".into() });
+    };
+    let top = if y_max_m.is_finite() && y_max_m > 0.0 { e1.min(y_max_m) } else { e1 };
+    write_figure(out_stem, &ErrorFigure { title, series, attacks, x: t0..t1, y: 0.0..(top * 1.05).max(0.1) })
+}
+
+// ---------------------------------------------------------------------------------------------
 // Flight top view.
 
 /// Horizontal tracks of one flight in the world ENU frame, metres.

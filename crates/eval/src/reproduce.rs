@@ -160,6 +160,20 @@ pub struct Options {
     pub out: PathBuf,
     /// Show progress bars.
     pub progress: bool,
+    /// Which experiments run.
+    pub stages: Stages,
+}
+
+/// Which experiments `reproduce-tables` runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Stages {
+    /// Tables I and II with their studies, then the closed loop (Table III).
+    #[default]
+    All,
+    /// Tables I and II with their studies only.
+    Tables,
+    /// The closed loop (Table III) only.
+    ClosedLoop,
 }
 
 /// The eight cells of Tables I and II, in table order.
@@ -592,6 +606,9 @@ pub fn reproduce(opts: &Options) -> Result<Vec<PathBuf>> {
     let start = Instant::now();
     std::fs::create_dir_all(&opts.out)
         .map_err(|e| ReproduceError::Config(format!("{}: cannot create: {e}", opts.out.display())))?;
+    if opts.stages == Stages::ClosedLoop {
+        return crate::closed_loop::closed_loop(opts).map(|(_, files)| files);
+    }
     let matrix_has_study_unit = opts.cells.contains(&STUDY_CELL) && opts.seeds >= 1;
     let keep = (matrix_has_study_unit && !opts.config.sweep_sigma.is_empty()).then_some((STUDY_CELL, 0));
     let study_data = load_cell(STUDY_CELL, 0, opts)?;
@@ -640,9 +657,19 @@ pub fn reproduce(opts: &Options) -> Result<Vec<PathBuf>> {
     files.extend(sweep_files);
     let modes: &[ModeMetrics] =
         study_records.iter().find(|r| r.result.method == Method::QuadFormer.name()).map_or(&[], |r| &r.modes);
+    let closed = if opts.stages == Stages::All {
+        let (rows, loop_files) = crate::closed_loop::closed_loop(opts)?;
+        files.extend(loop_files);
+        Some(rows)
+    } else {
+        None
+    };
     let wall_s = start.elapsed().as_secs_f64();
 
     write_report(&mut report, opts, &records, &cusum_note, &sweep, modes, &fractions, &arch, wall_s);
+    if let Some(rows) = &closed {
+        crate::closed_loop::write_report_section(&mut report, rows);
+    }
     let report_path = opts.out.join("report.md");
     write_text_atomic(&report_path, &report)?;
     files.push(report_path);

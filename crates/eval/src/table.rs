@@ -147,7 +147,8 @@ impl Cell {
 }
 
 impl NoiseModel {
-    fn name(self) -> &'static str {
+    /// Lowercase name, as in cell slugs (`exponential`).
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Self::Gaussian => "gaussian",
             Self::Exponential => "exponential",
@@ -584,7 +585,7 @@ pub fn timings_csv(results: &[RunResult]) -> Result<String> {
     to_csv(&rows)
 }
 
-fn to_csv<T: Serialize>(rows: &[T]) -> Result<String> {
+pub(crate) fn to_csv<T: Serialize>(rows: &[T]) -> Result<String> {
     let mut w = csv::WriterBuilder::new().terminator(csv::Terminator::Any(b'\n')).from_writer(Vec::new());
     let csv_err = |e: csv::Error| TableError::Parse { path: PathBuf::from("<csv>"), msg: e.to_string() };
     for row in rows {

@@ -5,8 +5,9 @@
 
 use std::path::Path;
 
+use eval::closed_loop::{ClosedLoopRow, Family};
 use eval::dataset::SplitSteps;
-use eval::reproduce::{MatrixConfig, Options, parse_cell, reproduce};
+use eval::reproduce::{MatrixConfig, Options, Stages, parse_cell, reproduce};
 use eval::runner::Method;
 use eval::table::read_results_csv;
 
@@ -30,6 +31,7 @@ fn micro_options(out: &Path) -> Options {
         methods: Method::ALL.to_vec(),
         out: out.to_owned(),
         progress: false,
+        stages: Stages::All,
     }
 }
 
@@ -85,8 +87,34 @@ fn quick_matrix_writes_every_output_with_valid_numbers_deterministically() {
     assert!(report.contains("| full |") && report.contains("| no TPC |") && report.contains("| no DCM |"));
     assert!(report.contains("score modes over every cell and seed (2 runs)"), "{report}");
 
+    // The closed loop (Table III): one unit, every family × detector (fitted ones at two
+    // latencies), every rate in [0, 1], and the oracle excluding exactly the attacked fixes.
+    let rows: Vec<ClosedLoopRow> = csv::Reader::from_path(dir_a.path().join("closed_loop.csv"))
+        .unwrap()
+        .deserialize()
+        .collect::<Result<_, _>>()
+        .unwrap();
+    assert_eq!(rows.len(), Family::ALL.len() * (3 + 2 * 6), "families × (3 reference + 6 fitted × 2 latencies)");
+    for r in &rows {
+        for v in [r.precision, r.recall, r.f1] {
+            assert!(v.is_finite() && (0.0..=1.0).contains(&v), "{} {}: {v}", r.method, r.family);
+        }
+        if r.method == "Oracle" && r.n_intervals > 0 {
+            assert_eq!((r.f1, r.gps_lost_clean_s), (1.0, 0.0), "{r:?}");
+        }
+        if r.method == "None" {
+            assert_eq!(r.f1, 0.0, "no detector, no alarm: {r:?}");
+        }
+    }
+    assert!(rows.iter().any(|r| r.family == "ramp" && r.alarmed_before_3m.is_some()));
+    let table3 = std::fs::read_to_string(dir_a.path().join("table3.md")).unwrap();
+    assert!(table3.contains("| QUADFormer |") && table3.contains("| PX4 EKF2 |"), "{table3}");
+    assert!(dir_a.path().join("figures").join("closed-loop-drift.png").exists());
+
     reproduce(&micro_options(dir_b.path())).unwrap();
-    let a = std::fs::read(dir_a.path().join("results.csv")).unwrap();
-    let b = std::fs::read(dir_b.path().join("results.csv")).unwrap();
-    assert_eq!(a, b, "same seed, same results.csv");
+    for name in ["results.csv", "closed_loop.csv"] {
+        let a = std::fs::read(dir_a.path().join(name)).unwrap();
+        let b = std::fs::read(dir_b.path().join(name)).unwrap();
+        assert_eq!(a, b, "same seed, same {name}");
+    }
 }

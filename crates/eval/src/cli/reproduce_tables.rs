@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use crate::cli::CliError;
-use crate::reproduce::{MatrixConfig, Options, parse_cell, reproduce, table_cells};
+use crate::reproduce::{MatrixConfig, Options, Stages, parse_cell, reproduce, table_cells};
 use crate::runner::Method;
 use crate::table::Cell;
 
@@ -40,6 +40,10 @@ pub struct Args {
     /// Hide the progress bar.
     #[arg(long)]
     pub no_progress: bool,
+    /// Which experiments run: `all` (Tables I and II with their studies, then the closed loop
+    /// of Table III), `tables` or `closed-loop`.
+    #[arg(long, value_enum, default_value = "all")]
+    pub stages: Stages,
 }
 
 /// The cells, methods and seed count the options select, checked before any work starts:
@@ -89,6 +93,7 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         methods,
         out: args.out.clone(),
         progress: !args.no_progress,
+        stages: args.stages,
     };
     let files = reproduce(&opts).map_err(|e| CliError::Run(e.to_string()))?;
     for f in files {
@@ -110,6 +115,7 @@ mod tests {
             out: PathBuf::from("unused"),
             config: None,
             no_progress: true,
+            stages: Stages::All,
         }
     }
 
