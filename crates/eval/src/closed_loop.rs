@@ -12,8 +12,12 @@
 //!   are held out, never trained on.
 //! - Training and validation data: the trained families' flights flown with GPS excluded
 //!   exactly on attacked fixes ([`ResidueProtocol::Protected`]), so residues and labels agree.
-//!   The fitted detectors choose their thresholds on these validation flights (the streaming
-//!   threshold, as `fuse` uses).
+//! - Thresholds: each fitted detector first picks its streaming threshold on those validation
+//!   residues (inside `fit`); the validation flights are then flown in the loop with the
+//!   detector at that threshold, and the threshold that maximises F1 on the scores of that
+//!   flight is the one the test flights use ([`loop_threshold`]). In the loop the detector's
+//!   own exclusions change the residues (after a false exclusion the estimate has drifted);
+//!   the second pick sees that, the first cannot.
 //! - Detectors: the fitted QUADFormer, LSTM, CNN, CUSUM, SPRT and χ² test; the PX4 EKF2 gate
 //!   (5σ per axis, reset onto GPS after 7 s of rejection); `None` (GPS always fused) and
 //!   `Oracle` (exclusion exactly on attacked fixes). Fitted detectors fly at decision latency
@@ -28,11 +32,13 @@ use std::time::Instant;
 
 use attack_inject::{AttackConfig, AttackKind};
 use ekf_residue::residues::{FilterConfig, GPS_CHANNELS};
-use ekf_residue::{Confusion, Detector, LabelledResidues};
+use ekf_residue::{
+    Confusion, DetectError, Detector, LabelledResidues, OnlineDecision, OnlineDetector, ResidueStep, best_f1_threshold,
+};
 use rayon::prelude::*;
 use resilient_fusion::estimator::ResilientConfig;
 use resilient_fusion::gates::{InnovationGate, Oracle};
-use resilient_fusion::recorded::{LoopTrace, fly_recorded};
+use resilient_fusion::recorded::{LoopStep, LoopTrace, fly_recorded};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
@@ -45,7 +51,7 @@ use crate::runner::{Method, fit};
 use crate::table::{NoiseModel, UavModel, to_csv};
 
 /// Bumped when the unit's computation changes, so cached units are recomputed.
-const UNIT_VERSION: u32 = 1;
+const UNIT_VERSION: u32 = 2;
 
 /// Seconds after an attack ends over which `max_error_after_m` is taken.
 pub const AFTER_WINDOW_S: f64 = 30.0;
@@ -184,6 +190,9 @@ pub struct ClosedLoopRow {
     pub latency_s: f64,
     /// Seed.
     pub seed: u64,
+    /// Alarm threshold of the detector's streaming score in the loop (none for the reference
+    /// rows, which have their own decision rules).
+    pub threshold: Option<f64>,
     /// Per-fix precision of the alarms.
     pub precision: f64,
     /// Per-fix recall.
@@ -322,15 +331,25 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
     }
     let (train, valid) = (merge(train)?, merge(valid)?);
     let cfgs = opts.config.methods.seeded(unit.seed);
-    let mut fitted: Vec<(Method, Box<dyn Detector>)> = Vec::new();
+    // Every family of a unit shares the cell's simulator and filter.
+    let filter = family_dataset(unit, Family::Sparse, opts).filter;
+    let valid_flights: Vec<PlannedFlight> = trained_cfgs
+        .iter()
+        .map(|(f, c)| plan_split(c, Split::Valid).map_err(dataset_err(unit, *f)))
+        .collect::<Result<Vec<_>>>()?
+        .into_iter()
+        .flatten()
+        .collect();
+    let mut fitted: Vec<(Method, Box<dyn Detector>, f64)> = Vec::new();
     for m in methods {
         if let LoopMethod::Fitted(method) = *m {
-            fitted.push((method, fit(method, &cfgs, &train, &valid)?.detector));
+            let det = fit(method, &cfgs, &train, &valid)?.detector;
+            let threshold = loop_threshold(det.as_ref(), &valid_flights, &filter)
+                .map_err(|e| ReproduceError::Config(format!("closed loop {}: {e}", unit.slug())))?;
+            fitted.push((method, det, threshold));
         }
     }
 
-    // Every family of a unit shares the cell's simulator and filter.
-    let filter = family_dataset(unit, Family::Sparse, opts).filter;
     let mut rows = Vec::new();
     let mut drift = DriftTrace::default();
     for (family, cfg) in &test_cfgs {
@@ -338,17 +357,24 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
         for &method in methods {
             let latencies: &[f64] = if matches!(method, LoopMethod::Fitted(_)) { &LATENCIES_S } else { &[0.0] };
             for &latency_s in latencies {
-                let det = match method {
-                    LoopMethod::Fitted(m) => fitted.iter().find(|(f, _)| *f == m).map(|(_, d)| d.as_ref()),
-                    _ => None,
+                let pilot = match method {
+                    LoopMethod::Fitted(m) => match fitted.iter().find(|(f, _, _)| *f == m) {
+                        Some((_, d, t)) => Pilot::Fitted(d.as_ref(), *t),
+                        None => return Err(ReproduceError::Config(format!("{} was not fitted", m.name()))),
+                    },
+                    LoopMethod::Px4Ekf2 => Pilot::Px4Ekf2,
+                    LoopMethod::None => Pilot::None,
+                    LoopMethod::Oracle => Pilot::Oracle,
                 };
-                let traces = fly_family(&flights, &filter, method, det, latency_s).map_err(|e| {
+                let traces = fly_family(&flights, &filter, pilot, latency_s).map_err(|e| {
                     ReproduceError::Config(format!("closed loop {} {}: {e}", unit.slug(), family.name()))
                 })?;
                 if *family == Family::Ramp && latency_s == 0.0 && unit.seed == 0 {
                     record_drift(&mut drift, &flights, &traces, method.name());
                 }
-                rows.push(row(unit, *family, method.name(), latency_s, &flights, &traces));
+                let threshold = if let Pilot::Fitted(_, t) = pilot { Some(t) } else { None };
+                let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
+                rows.push(row(unit, *family, method.name(), latency_s, threshold, &steps));
             }
         }
     }
@@ -360,38 +386,98 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
     Ok(rec)
 }
 
-/// Fly every flight of a family with one detector.
+/// A fitted detector's online form alarming at its own threshold instead of the fitted one.
+struct AtThreshold<'d> {
+    inner: Box<dyn OnlineDetector + 'd>,
+    threshold: f64,
+}
+
+impl OnlineDetector for AtThreshold<'_> {
+    fn update(&mut self, step: &ResidueStep<'_>) -> std::result::Result<OnlineDecision, DetectError> {
+        let d = self.inner.update(step)?;
+        Ok(OnlineDecision { score: d.score, alarm: d.score > self.threshold })
+    }
+
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
+}
+
+/// The loop threshold of a fitted detector (module doc): fly `valid` (latency 0) with the
+/// detector at its streaming threshold and return the F1-maximising threshold of the scores
+/// it gave there.
+///
+/// # Errors
+/// A flight's error, or no attacked fix among the validation flights.
+pub fn loop_threshold(
+    det: &dyn Detector,
+    valid: &[PlannedFlight],
+    filter: &FilterConfig,
+) -> std::result::Result<f64, String> {
+    let traces = fly_family(valid, filter, Pilot::Fitted(det, det.streaming_threshold()), 0.0)?;
+    let pairs: Vec<(Vec<f64>, Vec<bool>)> = traces
+        .iter()
+        .map(|tr| (tr.steps.iter().map(|s| s.score).collect(), tr.steps.iter().map(|s| s.attacked).collect()))
+        .collect();
+    best_f1_threshold(pairs.iter().map(|(s, l)| (s.as_slice(), l.as_slice())))
+        .map(|(t, _)| t)
+        .map_err(|e| format!("{} loop threshold: {e}", det.name()))
+}
+
+/// What decides the exclusions of a flight.
+#[derive(Clone, Copy)]
+enum Pilot<'d> {
+    /// A fitted detector at a threshold of its streaming score.
+    Fitted(&'d dyn Detector, f64),
+    /// PX4 EKF2's gate.
+    Px4Ekf2,
+    /// No detector.
+    None,
+    /// The oracle.
+    Oracle,
+}
+
+impl Pilot<'_> {
+    fn name(&self) -> &str {
+        match self {
+            Self::Fitted(d, _) => d.name(),
+            Self::Px4Ekf2 => LoopMethod::Px4Ekf2.name(),
+            Self::None => LoopMethod::None.name(),
+            Self::Oracle => LoopMethod::Oracle.name(),
+        }
+    }
+}
+
+/// Fly every flight of a family with one pilot.
 fn fly_family(
     flights: &[PlannedFlight],
     filter: &FilterConfig,
-    method: LoopMethod,
-    det: Option<&dyn Detector>,
+    pilot: Pilot<'_>,
     latency_s: f64,
 ) -> std::result::Result<Vec<LoopTrace>, String> {
     flights
         .iter()
         .map(|f| {
             let mut cfg = ResilientConfig { latency_s, ..ResilientConfig::default() };
-            let online: Option<Box<dyn ekf_residue::OnlineDetector + '_>> = match (method, det) {
-                (LoopMethod::Fitted(_), Some(d)) => {
+            let online: Option<Box<dyn OnlineDetector + '_>> = match pilot {
+                Pilot::Fitted(d, threshold) => {
                     cfg.detector_channels = d.channels().to_vec();
-                    Some(d.online())
+                    Some(Box::new(AtThreshold { inner: d.online(), threshold }))
                 }
-                (LoopMethod::Fitted(m), None) => return Err(format!("{} was not fitted", m.name())),
-                (LoopMethod::Px4Ekf2, _) => {
+                Pilot::Px4Ekf2 => {
                     cfg.hold_s = 0.0;
                     cfg.reset_after_s = Some(7.0);
                     cfg.detector_channels = GPS_CHANNELS.iter().map(|c| (*c).to_owned()).collect();
                     Some(Box::new(InnovationGate::new(InnovationGate::PX4_GAMMA).map_err(|e| e.to_string())?))
                 }
-                (LoopMethod::None, _) => None,
-                (LoopMethod::Oracle, _) => {
+                Pilot::None => None,
+                Pilot::Oracle => {
                     cfg.hold_s = 0.0;
                     Some(Box::new(Oracle::new(f.plan.clone())))
                 }
             };
             fly_recorded(&f.flight, &f.plan, filter, &cfg, online)
-                .map_err(|e| format!("{} flight {}: {e}", method.name(), f.index))
+                .map_err(|e| format!("{} flight {}: {e}", pilot.name(), f.index))
         })
         .collect()
 }
@@ -408,24 +494,24 @@ fn record_drift(drift: &mut DriftTrace, flights: &[PlannedFlight], traces: &[Loo
     drift.errors.push((name.to_owned(), tr.steps.iter().map(|s| (s.t, s.error_m)).collect()));
 }
 
-/// The metrics of one detector on one family's flights.
+/// The metrics of one detector on one family's flights (`flights`: the steps of each).
 fn row(
     unit: LoopUnit,
     family: Family,
     method: &str,
     latency_s: f64,
-    flights: &[PlannedFlight],
-    traces: &[LoopTrace],
+    threshold: Option<f64>,
+    flights: &[&[LoopStep]],
 ) -> ClosedLoopRow {
     let mut conf = Confusion::default();
     let mut delays = Vec::new();
     let (mut n_intervals, mut fa_events, mut clean_s) = (0u64, 0usize, 0.0);
     let (mut max_att, mut sum_sq_att, mut n_att, mut max_after, mut lost) = (0.0_f64, 0.0, 0usize, 0.0_f64, 0.0);
     let (mut drifts, mut caught) = (0usize, 0usize);
-    for (tr, _flight) in traces.iter().zip(flights) {
-        let t: Vec<f64> = tr.steps.iter().map(|s| s.t).collect();
-        let alarms: Vec<bool> = tr.steps.iter().map(|s| s.alarm).collect();
-        let labels: Vec<bool> = tr.steps.iter().map(|s| s.attacked).collect();
+    for &steps in flights {
+        let t: Vec<f64> = steps.iter().map(|s| s.t).collect();
+        let alarms: Vec<bool> = steps.iter().map(|s| s.alarm).collect();
+        let labels: Vec<bool> = steps.iter().map(|s| s.attacked).collect();
         conf.add(Confusion::count(&alarms, &labels));
         if let Ok(d) = detection_delays(&t, &alarms, &labels) {
             delays.extend(d.delays_s);
@@ -440,13 +526,13 @@ fn row(
             _ => 0.0,
         };
         let mut last_end = f64::NEG_INFINITY;
-        for (k, s) in tr.steps.iter().enumerate() {
+        for (k, s) in steps.iter().enumerate() {
             if s.attacked {
                 max_att = max_att.max(s.error_m);
                 sum_sq_att += s.error_m * s.error_m;
                 n_att += 1;
             } else {
-                if k > 0 && tr.steps[k - 1].attacked {
+                if k > 0 && steps[k - 1].attacked {
                     last_end = s.t;
                 }
                 if s.t - last_end <= AFTER_WINDOW_S {
@@ -459,10 +545,10 @@ fn row(
         }
         if family == Family::Ramp {
             for iv in crate::metrics::attack_intervals(&labels) {
-                let steps = &tr.steps[iv.start..iv.end];
-                if let Some(k3) = steps.iter().position(|s| s.offset_m >= DRIFT_CATCH_M) {
+                let run = &steps[iv.start..iv.end];
+                if let Some(k3) = run.iter().position(|s| s.offset_m >= DRIFT_CATCH_M) {
                     drifts += 1;
-                    caught += usize::from(steps[..k3].iter().any(|s| s.alarm));
+                    caught += usize::from(run[..k3].iter().any(|s| s.alarm));
                 }
             }
         }
@@ -481,6 +567,7 @@ fn row(
         method: method.to_owned(),
         latency_s,
         seed: unit.seed,
+        threshold,
         precision: conf.precision(),
         recall: conf.recall(),
         f1: conf.f1(),
@@ -573,17 +660,23 @@ pub fn closed_loop(opts: &Options) -> Result<(Vec<ClosedLoopRow>, Vec<PathBuf>)>
         write_text_atomic(&p, &text)?;
         files.push(p);
     }
-    if let Some(first) = records.iter().find(|r| !r.drift.errors.is_empty()) {
+    // The figure shows Model II when it ran (its estimate survives GPS exclusion on VO), else
+    // the first unit with a drift flight; seed 0 either way.
+    let drawn = units
+        .iter()
+        .zip(&records)
+        .filter(|(_, r)| !r.drift.errors.is_empty())
+        .max_by_key(|(u, _)| (u.model == UavModel::II, std::cmp::Reverse(**u)));
+    if let Some((u, rec)) = drawn {
         let series: Vec<ErrorSeries<'_>> =
-            first.drift.errors.iter().map(|(l, p)| ErrorSeries { label: l, points: p }).collect();
-        let u = units.iter().find(|u| u.seed == 0).copied().unwrap_or(units[0]);
+            rec.drift.errors.iter().map(|(l, p)| ErrorSeries { label: l, points: p }).collect();
         let title = format!(
             "Protected position error on a drift flight ({}, {} noise, ramp test flight, seed 0, latency 0)",
             model_name(u.model),
             u.noise.name()
         );
         let stem = opts.out.join("figures").join("closed-loop-drift");
-        files.extend(error_time_plot(&stem, &title, &series, &first.drift.attacks, 30.0)?);
+        files.extend(error_time_plot(&stem, &title, &series, &rec.drift.attacks, 30.0)?);
     }
     Ok((rows, files))
 }
@@ -761,5 +854,69 @@ pub fn write_report_section(s: &mut String, rows: &[ClosedLoopRow]) {
                 fmt_ms(stat("ramp", |r| r.max_error_attack_m), 1),
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 10 Hz flight of `n` fixes; `attacked(k)` and `alarm(k)` script the labels and alarms,
+    /// the offset grows 1 m per attacked fix and the error is 0.1 m clean, 2 m attacked.
+    fn steps(n: usize, attacked: impl Fn(usize) -> bool, alarm: impl Fn(usize) -> bool) -> Vec<LoopStep> {
+        let mut offset = 0.0;
+        (0..n)
+            .map(|k| {
+                let a = attacked(k);
+                offset = if a { offset + 1.0 } else { 0.0 };
+                #[allow(clippy::cast_precision_loss)]
+                let t = 0.1 * k as f64;
+                LoopStep {
+                    t,
+                    attacked: a,
+                    offset_m: offset,
+                    score: 0.0,
+                    alarm: alarm(k),
+                    gps_excluded: alarm(k),
+                    reset: false,
+                    error_m: if a { 2.0 } else { 0.1 },
+                }
+            })
+            .collect()
+    }
+
+    const UNIT: LoopUnit = LoopUnit { model: UavModel::I, noise: NoiseModel::Exponential, seed: 0 };
+
+    #[test]
+    fn row_counts_alarms_delays_false_alarm_events_and_errors() {
+        // Attack on fixes 100..110; alarms on 103..110 (delay 0.3 s) and a clean false alarm
+        // event on 200..205 (5 fixes excluded, 0.5 s of GPS lost).
+        let f = steps(600, |k| (100..110).contains(&k), |k| (103..110).contains(&k) || (200..205).contains(&k));
+        let r = row(UNIT, Family::Ramp, "X", 0.0, Some(1.0), &[f.as_slice()]);
+        assert_eq!((r.precision, r.recall), (7.0 / 12.0, 0.7));
+        assert!((r.delay_median_s.unwrap() - 0.3).abs() < 1e-9);
+        assert_eq!(r.n_intervals, 1);
+        assert!((r.gps_lost_clean_s - 0.5).abs() < 1e-9);
+        assert!((r.clean_min - 59.0 / 60.0).abs() < 1e-6, "{}", r.clean_min);
+        assert!((r.alarm_events_per_clean_min - 60.0 / 59.0).abs() < 1e-6);
+        assert_eq!((r.max_error_attack_m, r.rmse_attack_m, r.max_error_after_m), (2.0, 2.0, 0.1));
+        // The offset passes 3 m at the third attacked fix, before the first alarm: not caught.
+        assert_eq!(r.alarmed_before_3m, Some(0.0));
+        let early = steps(600, |k| (100..110).contains(&k), |k| (101..110).contains(&k));
+        let r = row(UNIT, Family::Ramp, "X", 0.0, None, &[early.as_slice(), f.as_slice()]);
+        assert_eq!(r.alarmed_before_3m, Some(0.5), "one of the two drifts caught before 3 m");
+        assert_eq!(row(UNIT, Family::Bias, "X", 0.0, None, &[f.as_slice()]).alarmed_before_3m, None);
+    }
+
+    #[test]
+    fn families_configure_their_attacks() {
+        for f in Family::ALL {
+            assert!(f.attack(0.5).check().is_ok(), "{}", f.name());
+        }
+        assert_eq!(Family::Bias.attack(0.5).ramp_probability, 0.0);
+        let ramp = Family::Ramp.attack(0.5);
+        assert_eq!((ramp.ramp_probability, ramp.ramp_slope_mps), (1.0, Some([0.1, 5.0])));
+        assert_eq!(Family::TRAINED.iter().filter(|f| f.trained()).count(), 3);
+        assert!(!Family::Replay.trained());
     }
 }

@@ -30,6 +30,8 @@ pub struct LoopStep {
     pub attacked: bool,
     /// `‖d_k‖`, the norm of the injected offset, metres.
     pub offset_m: f64,
+    /// The detector's score of this step's residue (NaN without a detector).
+    pub score: f64,
     /// Whether the detector alarmed on this step's residue (false without a detector).
     pub alarm: bool,
     /// Whether GPS was excluded at this step.
@@ -117,6 +119,7 @@ pub fn fly_recorded(
             t,
             attacked: sent.attacked,
             offset_m: sent.offset.norm(),
+            score: step.decision.map_or(f64::NAN, |d| d.score),
             alarm: step.decision.is_some_and(|d| d.alarm),
             gps_excluded: step.gps_excluded,
             reset: step.reset,
