@@ -30,6 +30,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
 
+use attack_inject::AttackedSample;
 use attack_inject::{AttackConfig, AttackKind};
 use ekf_residue::residues::{FilterConfig, GPS_CHANNELS};
 use ekf_residue::{
@@ -38,12 +39,13 @@ use ekf_residue::{
 use rayon::prelude::*;
 use resilient_fusion::estimator::ResilientConfig;
 use resilient_fusion::gates::{InnovationGate, Oracle};
-use resilient_fusion::recorded::{LoopStep, LoopTrace, fly_recorded};
+use resilient_fusion::recorded::{GpsAttack, LoopStep, LoopTrace, fly_recorded};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
+use uav_dynamics::sensors::{Flight, GpsSample};
 
 use crate::dataset::{DatasetConfig, PlannedFlight, ResidueProtocol, Split, SplitSteps, load_or_build, plan_split};
-use crate::io::write_text_atomic;
+use crate::io::{AttackRecord, FlightDir, TIME_MATCH_TOL_S, write_text_atomic};
 use crate::metrics::{MeanStd, detection_delays, false_alarms, quantile};
 use crate::plot::{ErrorSeries, error_time_plot};
 use crate::reproduce::{Options, ReproduceError, Result};
@@ -494,7 +496,39 @@ fn record_drift(drift: &mut DriftTrace, flights: &[PlannedFlight], traces: &[Loo
     drift.errors.push((name.to_owned(), tr.steps.iter().map(|s| (s.t, s.error_m)).collect()));
 }
 
-/// The metrics of one detector on one family's flights (`flights`: the steps of each).
+/// What a detector did in the loop over a set of flights (the metric columns of
+/// [`ClosedLoopRow`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct LoopMetrics {
+    /// Per-fix precision of the alarms.
+    pub precision: f64,
+    /// Per-fix recall.
+    pub recall: f64,
+    /// Per-fix F1.
+    pub f1: f64,
+    /// Median onset → first alarm over detected attack intervals, seconds.
+    pub delay_median_s: Option<f64>,
+    /// 90th percentile of the same.
+    pub delay_p90_s: Option<f64>,
+    /// Alarm events per minute of clean flight.
+    pub alarm_events_per_clean_min: f64,
+    /// Largest `‖p̂ − p‖` on attacked fixes, metres.
+    pub max_error_attack_m: f64,
+    /// RMS of `‖p̂ − p‖` on attacked fixes, metres.
+    pub rmse_attack_m: f64,
+    /// Largest `‖p̂ − p‖` on clean fixes within 30 s after an attack ends, metres.
+    pub max_error_after_m: f64,
+    /// Clean flight time with GPS excluded, seconds.
+    pub gps_lost_clean_s: f64,
+    /// Share of the attack intervals whose offset passed 3 m that alarmed before (drifts).
+    pub alarmed_before_3m: Option<f64>,
+    /// Attack intervals.
+    pub n_intervals: u64,
+    /// Clean flight time, minutes.
+    pub clean_min: f64,
+}
+
+/// The metrics of one detector on one family's flights.
 fn row(
     unit: LoopUnit,
     family: Family,
@@ -503,6 +537,37 @@ fn row(
     threshold: Option<f64>,
     flights: &[&[LoopStep]],
 ) -> ClosedLoopRow {
+    let m = loop_metrics(flights, family == Family::Ramp);
+    ClosedLoopRow {
+        model: unit.model,
+        noise: unit.noise,
+        family: family.name().to_owned(),
+        trained: family.trained(),
+        method: method.to_owned(),
+        latency_s,
+        seed: unit.seed,
+        threshold,
+        precision: m.precision,
+        recall: m.recall,
+        f1: m.f1,
+        delay_median_s: m.delay_median_s,
+        delay_p90_s: m.delay_p90_s,
+        alarm_events_per_clean_min: m.alarm_events_per_clean_min,
+        max_error_attack_m: m.max_error_attack_m,
+        rmse_attack_m: m.rmse_attack_m,
+        max_error_after_m: m.max_error_after_m,
+        gps_lost_clean_s: m.gps_lost_clean_s,
+        alarmed_before_3m: m.alarmed_before_3m,
+        n_intervals: m.n_intervals,
+        clean_min: m.clean_min,
+    }
+}
+
+/// The metrics of the steps of `flights` (one slice per flight); `drift` computes
+/// `alarmed_before_3m` over the attack intervals whose offset passes 3 m. Errors are NaN for
+/// flights without ground truth.
+#[must_use]
+pub fn loop_metrics(flights: &[&[LoopStep]], drift: bool) -> LoopMetrics {
     let mut conf = Confusion::default();
     let mut delays = Vec::new();
     let (mut n_intervals, mut fa_events, mut clean_s) = (0u64, 0usize, 0.0);
@@ -543,7 +608,7 @@ fn row(
                 }
             }
         }
-        if family == Family::Ramp {
+        if drift {
             for iv in crate::metrics::attack_intervals(&labels) {
                 let run = &steps[iv.start..iv.end];
                 if let Some(k3) = run.iter().position(|s| s.offset_m >= DRIFT_CATCH_M) {
@@ -558,16 +623,12 @@ fn row(
     #[allow(clippy::cast_precision_loss)]
     let fa_rate = if clean_s > 0.0 { fa_events as f64 * 60.0 / clean_s } else { 0.0 };
     #[allow(clippy::cast_precision_loss)]
-    let alarmed_before_3m = (family == Family::Ramp && drifts > 0).then(|| caught as f64 / drifts as f64);
-    ClosedLoopRow {
-        model: unit.model,
-        noise: unit.noise,
-        family: family.name().to_owned(),
-        trained: family.trained(),
-        method: method.to_owned(),
-        latency_s,
-        seed: unit.seed,
-        threshold,
+    let alarmed_before_3m = (drift && drifts > 0).then(|| caught as f64 / drifts as f64);
+    if flights.iter().any(|f| f.iter().any(|s| s.error_m.is_nan())) {
+        (max_att, max_after) = (f64::NAN, f64::NAN);
+    }
+    let rmse = if max_att.is_nan() { f64::NAN } else { rmse };
+    LoopMetrics {
         precision: conf.precision(),
         recall: conf.recall(),
         f1: conf.f1(),
@@ -582,6 +643,43 @@ fn row(
         n_intervals,
         clean_min: clean_s / 60.0,
     }
+}
+
+/// The attack recorded with a flight folder (`attack.csv`): the fix at `t` was sent as the
+/// clean fix plus `d`, so a folder's received GPS minus `d` is its clean GPS.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordedAttack {
+    records: Vec<AttackRecord>,
+}
+
+impl GpsAttack for RecordedAttack {
+    fn apply(&self, clean: &GpsSample, _history: &[GpsSample]) -> AttackedSample {
+        let i = self.records.partition_point(|r| r.t < clean.t - TIME_MATCH_TOL_S);
+        match self.records.get(i) {
+            Some(r) if r.label && (r.t - clean.t).abs() <= TIME_MATCH_TOL_S => {
+                AttackedSample { gps: GpsSample { t: clean.t, p: clean.p + r.d }, offset: r.d, attacked: true }
+            }
+            _ => AttackedSample { gps: *clean, offset: nalgebra::Vector3::zeros(), attacked: false },
+        }
+    }
+}
+
+/// A user's flight folder as the loop flies it: the clean flight (received GPS minus the
+/// recorded offsets; the truth if the folder has one) and the recorded attack (none without
+/// `attack.csv`, so every fix is clean).
+#[must_use]
+pub fn flight_from_dir(dir: &FlightDir) -> (Flight, RecordedAttack) {
+    let records = dir.attack.clone().unwrap_or_default();
+    let mut streams = dir.streams.clone();
+    for g in &mut streams.gps {
+        let i = records.partition_point(|r| r.t < g.t - TIME_MATCH_TOL_S);
+        if let Some(r) = records.get(i)
+            && (r.t - g.t).abs() <= TIME_MATCH_TOL_S
+        {
+            g.p -= r.d;
+        }
+    }
+    (Flight { streams, truth: dir.truth.clone().unwrap_or_default() }, RecordedAttack { records })
 }
 
 /// Hash of everything that determines a unit.

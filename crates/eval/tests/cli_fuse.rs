@@ -154,3 +154,33 @@ fn fuse_rejects_bad_arguments() {
     assert!(stderr(&o).contains("no-model"), "{}", stderr(&o));
     assert!(!out.join("scenarios.csv").exists());
 }
+
+/// `fuse --in`: a flight folder flown in the loop. The fixture's recorded attack is re-applied
+/// online, so the labels of loop.csv are attack.csv's, and a χ² detector fitted on the quick
+/// cell excludes GPS on most attacked fixes.
+#[test]
+fn fuse_flies_a_flight_folder_in_the_loop() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("loop");
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/flight-60s");
+    let o = quadformer(&["fuse", "--in", s(&fixture), "--detector", "chi2", "--latency-s", "0", "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut r = csv::Reader::from_path(out.join("loop.csv")).unwrap();
+    let rows: Vec<(f64, u8, u8, u8)> = r
+        .records()
+        .map(|rec| {
+            let rec = rec.unwrap();
+            (rec[0].parse().unwrap(), rec[1].parse().unwrap(), rec[4].parse().unwrap(), rec[5].parse().unwrap())
+        })
+        .collect();
+    let attack = eval::io::read_attack(&fixture.join("attack.csv")).unwrap();
+    let attacked = rows.iter().filter(|r| r.1 == 1).count();
+    assert_eq!(attacked, attack.iter().filter(|a| a.label).count(), "every recorded attack re-applied");
+    let caught = rows.iter().filter(|r| r.1 == 1 && r.3 == 1).count();
+    assert!(caught * 2 > attacked, "GPS excluded on {caught} of {attacked} attacked fixes");
+    let md = std::fs::read_to_string(out.join("loop.md")).unwrap();
+    assert!(md.contains("| precision / recall / F1 |"), "{md}");
+    // A scenario and a folder at once is refused.
+    let o = quadformer(&["fuse", "--scenario", "eight", "--in", s(&fixture), "--out", s(&out)]);
+    assert!(!o.status.success());
+}

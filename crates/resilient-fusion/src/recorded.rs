@@ -10,8 +10,9 @@
 //!
 //! Sensor samples are matched to IMU samples by time (the simulator stamps every sensor on an
 //! IMU tick); a sample more than half an IMU period away from every IMU sample is an error.
+//! A flight without ground truth is flown too; its errors are then NaN.
 
-use attack_inject::AttackPlan;
+use attack_inject::{AttackPlan, AttackedSample};
 use ekf_residue::detector::OnlineDetector;
 use ekf_residue::residues::{FilterConfig, Measurements};
 use ekf_residue::series::ResidueSeries;
@@ -19,6 +20,19 @@ use uav_dynamics::sensors::{Flight, GpsSample};
 
 use crate::error::{FusionError, Result};
 use crate::estimator::{ResilientConfig, ResilientEstimator};
+
+/// What turns each clean fix into the fix the estimator receives: an [`AttackPlan`], or the
+/// offsets recorded with a flight (a flight folder's `attack.csv`).
+pub trait GpsAttack {
+    /// The fix sent for `clean`; `history` holds the clean fixes before it, in time order.
+    fn apply(&self, clean: &GpsSample, history: &[GpsSample]) -> AttackedSample;
+}
+
+impl GpsAttack for AttackPlan {
+    fn apply(&self, clean: &GpsSample, history: &[GpsSample]) -> AttackedSample {
+        AttackPlan::apply(self, clean, history)
+    }
+}
 
 /// One GPS step of a flown flight: what was sent, what the detector said, what the estimator
 /// did, and how wrong its estimate was.
@@ -54,21 +68,21 @@ pub struct LoopTrace {
     pub labels: Vec<bool>,
 }
 
-/// Fly `flight` through a [`ResilientEstimator`] built from `filter_cfg`, `cfg` and `detector`,
-/// attacking its GPS with `plan` online.
+/// Fly `flight` (clean sensor streams, truth optional) through a [`ResilientEstimator`] built
+/// from `filter_cfg`, `cfg` and `detector`, attacking its GPS with `attack` online.
 ///
 /// # Errors
-/// [`FusionError::Config`] when a sensor sample matches no IMU sample or the flight gives no
-/// residue; otherwise the estimator's errors.
+/// [`FusionError::Config`] when a sensor sample matches no IMU sample, the truth does not have
+/// one sample per IMU sample, or the flight gives no residue; otherwise the estimator's errors.
 pub fn fly_recorded(
     flight: &Flight,
-    plan: &AttackPlan,
+    attack: &dyn GpsAttack,
     filter_cfg: &FilterConfig,
     cfg: &ResilientConfig,
     detector: Option<Box<dyn OnlineDetector + '_>>,
 ) -> Result<LoopTrace> {
     let s = &flight.streams;
-    if flight.truth.len() != s.imu.len() {
+    if !flight.truth.is_empty() && flight.truth.len() != s.imu.len() {
         return Err(FusionError::Config {
             field: "flight",
             msg: format!("{} truth samples for {} IMU samples", flight.truth.len(), s.imu.len()),
@@ -84,7 +98,8 @@ pub fn fly_recorded(
     let mut steps = Vec::with_capacity(s.gps.len());
     let (mut rt, mut rr, mut rs, mut labels) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut channels: Option<&'static [&'static str]> = None;
-    for (imu, truth) in s.imu.iter().zip(&flight.truth) {
+    for (k, imu) in s.imu.iter().enumerate() {
+        let truth = flight.truth.get(k);
         let t = imu.t;
         let take = |len: usize, idx: &mut usize, time: &dyn Fn(usize) -> f64, what: &'static str| {
             if *idx < len && time(*idx) < t - tol {
@@ -102,7 +117,7 @@ pub fn fly_recorded(
         let vi = take(s.vo.len(), &mut v, &|i| s.vo[i].t, "vo")?;
         let sent = gi.map(|i| {
             let clean = GpsSample { t, p: s.gps[i].p };
-            let out = plan.apply(&clean, &history);
+            let out = attack.apply(&clean, &history);
             history.push(clean);
             out
         });
@@ -114,7 +129,10 @@ pub fn fly_recorded(
         };
         let Some(step) = est.process(imu, &meas)? else { continue };
         let Some(sent) = sent else { continue };
-        let error_m = est.estimate().map_or(f64::NAN, |e| (e.p - truth.p).norm());
+        let error_m = match (est.estimate(), truth) {
+            (Some(e), Some(truth)) => (e.p - truth.p).norm(),
+            _ => f64::NAN,
+        };
         steps.push(LoopStep {
             t,
             attacked: sent.attacked,
