@@ -35,7 +35,6 @@
 //! ```
 
 use std::fmt;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -130,6 +129,9 @@ pub enum DatasetError {
         #[source]
         source: std::io::Error,
     },
+    /// Writing a cache file failed (`crate::io::write_bytes_atomic`).
+    #[error(transparent)]
+    Write(#[from] crate::io::IoError),
     /// Encoding the dataset failed.
     #[error("encoding dataset: {0}")]
     Encode(String),
@@ -907,16 +909,9 @@ pub fn load_or_build(cfg: &ValidDatasetConfig, cache_dir: &Path) -> Result<(Data
     Ok((data, CacheOutcome::Built { path, reason, build_s }))
 }
 
-/// Write `bytes` to a temporary file beside `path`, flush it, then rename it into place.
+/// Writes `bytes` to `path` atomically (`crate::io::write_bytes_atomic`).
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path.parent().unwrap_or_else(|| Path::new("."));
-    let io = |source| DatasetError::Io { path: path.to_path_buf(), source };
-    std::fs::create_dir_all(dir).map_err(io)?;
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(io)?;
-    tmp.write_all(bytes).map_err(io)?;
-    tmp.as_file().sync_all().map_err(io)?;
-    tmp.persist(path).map_err(|e| io(e.error))?;
-    Ok(())
+    Ok(crate::io::write_bytes_atomic(path, bytes)?)
 }
 
 #[cfg(test)]

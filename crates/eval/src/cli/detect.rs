@@ -26,7 +26,7 @@ use quadformer_model::QuadFormerDetector;
 
 use crate::cli::CliError;
 use crate::cli::train::{ModelManifest, Storage, check_same_channels, read_manifest, read_split};
-use crate::io::{IoError, read_residues, write_text_atomic};
+use crate::io::{Input, IoError, Output, check_outputs, read_residues, write_text_atomic};
 use crate::runner::fit;
 
 /// Relative tolerance between the recorded and the re-fitted threshold before a warning: the
@@ -60,6 +60,10 @@ pub struct Args {
 /// [`CliError`] naming the file: a missing, malformed or corrupt model manifest or checkpoint,
 /// an input CSV with a bad line or column, or channels that differ from the training channels.
 pub fn run(args: &Args) -> Result<(), CliError> {
+    check_outputs(
+        &[Input::new("--model", &args.model), Input::new("--in", &args.input)],
+        &[Output::file("--out", &args.out)],
+    )?;
     let manifest = read_manifest(&args.model)?;
     let input = read_residues(&args.input)?;
     check_same_channels(&args.input, &manifest.channels, input.series().channels())?;

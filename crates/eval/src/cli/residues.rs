@@ -15,8 +15,8 @@ use uav_dynamics::TruthSample;
 
 use crate::cli::CliError;
 use crate::io::{
-    ATTITUDE_FILE, CONFIG_FILE, CovarianceLayout, FlightConfig, FlightDir, GPS_FILE, IoError, VO_FILE, labels_at,
-    read_flight_dir, write_residues, write_truth,
+    ATTITUDE_FILE, CONFIG_FILE, CovarianceLayout, FlightConfig, FlightDir, GPS_FILE, Input, IoError, Output, VO_FILE,
+    check_outputs, labels_at, merge_over, read_flight_dir, write_residues, write_truth,
 };
 
 /// Which EKF model to run (paper sec:residue_generator).
@@ -93,6 +93,11 @@ pub struct Args {
 /// [`CliError`] naming the file, line and column of bad input, a stream the model needs that
 /// is missing, or the filter time at which the EKF failed.
 pub fn run(args: &Args) -> Result<(), CliError> {
+    let mut inputs = vec![Input::new("--in", &args.input)];
+    inputs.extend(args.filter_config.as_deref().map(|p| Input::new("--filter-config", p)));
+    let mut outputs = vec![Output::file("--out", &args.out)];
+    outputs.extend(args.estimates.as_deref().map(|p| Output::file("--estimates", p)));
+    check_outputs(&inputs, &outputs)?;
     let flight = read_flight_dir(&args.input)?;
     let model = ModelKind::from(args.model);
     check_streams(&args.input, &flight, model)?;
@@ -175,17 +180,4 @@ fn filter_config(args: &Args, flight: &FlightDir, model: ModelKind) -> Result<Fi
     cfg.model = model;
     cfg.check().map_err(|e| CliError::Config { path: path.clone(), msg: e.to_string() })?;
     Ok(cfg)
-}
-
-/// Overwrites `base` with the keys of `user`, recursing into tables present in both; keys of
-/// `user` unknown to `base` are kept, so that deserialisation rejects them by name.
-fn merge_over(base: &mut toml::Table, user: toml::Table) {
-    for (key, uv) in user {
-        match (base.get_mut(&key), uv) {
-            (Some(toml::Value::Table(bt)), toml::Value::Table(ut)) => merge_over(bt, ut),
-            (_, uv) => {
-                base.insert(key, uv);
-            }
-        }
-    }
 }

@@ -20,11 +20,13 @@
 use std::path::{Path, PathBuf};
 
 use ekf_residue::{Detector, Fit, LabelledResidues, LabelledSeries};
+use quadformer_model::checkpoint::weights_file_name;
 use serde::{Deserialize, Serialize};
 
 use crate::cli::CliError;
 use crate::io::{
-    CovarianceLayout, IoError, Overwrite, read_residues, write_dir_atomic, write_residues, write_text_atomic,
+    CovarianceLayout, Input, IoError, Output, Overwrite, check_dir_output, check_outputs, read_residues,
+    write_bytes_atomic, write_dir_atomic, write_residues, write_text_atomic,
 };
 use crate::runner::{Method, MethodConfigs, fit};
 
@@ -222,6 +224,11 @@ pub fn method_configs(path: Option<&Path>, quick: bool, seed: u64) -> Result<Met
 /// [`CliError`] naming the file of bad input (line and column for CSV errors, field for
 /// config errors), [`CliError::Run`] when fitting fails.
 pub fn run(args: &Args) -> Result<(), CliError> {
+    let overwrite = if args.force { Overwrite::Replace } else { Overwrite::Refuse };
+    let mut inputs = vec![Input::new("--train", &args.train), Input::new("--valid", &args.valid)];
+    inputs.extend(args.config.as_deref().map(|p| Input::new("--config", p)));
+    check_outputs(&inputs, &[Output::dir("--out", &args.out)])?;
+    check_dir_output(&args.out, overwrite)?;
     let cfgs = method_configs(args.config.as_deref(), args.quick, args.seed)?;
     let train_files = csv_files(&args.train)?;
     let valid_files = csv_files(&args.valid)?;
@@ -247,7 +254,6 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         }
     };
     let trained_on: Vec<String> = train_files.iter().chain(&valid_files).map(|p| p.display().to_string()).collect();
-    let overwrite = if args.force { Overwrite::Replace } else { Overwrite::Refuse };
 
     let threshold = if method == Method::QuadFormer {
         let det =
@@ -262,9 +268,12 @@ pub fn run(args: &Args) -> Result<(), CliError> {
             trained_on,
             Storage::Checkpoint { manifest: CHECKPOINT_FILE.into() },
         );
+        let files = det
+            .encode(&weights_file_name(CHECKPOINT_FILE))
+            .map_err(|e| CliError::Run(format!("{}: {e}", args.out.display())))?;
         write_dir_atomic(&args.out, overwrite, |dir| {
-            let ck = dir.join(CHECKPOINT_FILE);
-            det.save(&ck).map_err(|e| IoError::Inconsistent { path: ck.clone(), msg: e.to_string() })?;
+            write_bytes_atomic(&dir.join(weights_file_name(CHECKPOINT_FILE)), &files.weights)?;
+            write_text_atomic(&dir.join(CHECKPOINT_FILE), &files.manifest)?;
             write_manifest(dir, &manifest)
         })?;
         threshold

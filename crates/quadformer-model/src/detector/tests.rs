@@ -102,12 +102,20 @@ fn same_seed_same_detector() {
     assert_eq!(a.chosen(), b.chosen());
 }
 
+/// Writes `det`'s checkpoint as `path` and its weights beside it.
+fn save(det: &QuadFormerDetector, path: &std::path::Path) {
+    let name = path.file_name().unwrap().to_str().unwrap();
+    let files = det.encode(&crate::checkpoint::weights_file_name(name)).unwrap();
+    std::fs::write(path.with_extension("safetensors"), files.weights).unwrap();
+    std::fs::write(path, files.manifest).unwrap();
+}
+
 #[test]
 fn checkpoint_round_trip_gives_identical_scores() {
     let det = fitted();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
-    det.save(&path).unwrap();
+    save(det, &path);
     let back = QuadFormerDetector::load(&path).unwrap();
     let s = flight(100, 21, 4.0, false);
     assert_eq!(det.score(s.series()).unwrap(), back.score(s.series()).unwrap());
@@ -120,7 +128,7 @@ fn corrupt_truncated_and_mismatched_checkpoints_are_clear_errors() {
     let det = fitted();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
-    det.save(&path).unwrap();
+    save(det, &path);
     let weights = path.with_extension("safetensors");
     let good_w = std::fs::read(&weights).unwrap();
     let good_j = std::fs::read_to_string(&path).unwrap();
@@ -154,6 +162,12 @@ fn corrupt_truncated_and_mismatched_checkpoints_are_clear_errors() {
     }
     std::fs::write(&path, good_j.replace("\"len\": 16", "\"len\": 1000000000")).unwrap();
     expect_err("window.len");
+    std::fs::write(&path, good_j.replace("\"d_model\": 16", "\"d_model\": 1000000000")).unwrap();
+    expect_err("net.d_model");
+    let mut json: serde_json::Value = serde_json::from_str(&good_j).unwrap();
+    json["chosen"]["valid_f1"] = serde_json::json!(2.0);
+    std::fs::write(&path, json.to_string()).unwrap();
+    expect_err("chosen.valid_f1 must be in [0, 1]");
     let negative_std = good_j.replacen("\"std\": [\n      ", "\"std\": [\n      -", 1);
     assert_ne!(negative_std, good_j, "the manifest layout changed");
     std::fs::write(&path, negative_std).unwrap();
@@ -190,7 +204,7 @@ fn online_matches_batch_on_one_window_and_checks_input() {
 fn online_matches_batch_in_every_mode() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
-    fitted().save(&path).unwrap();
+    save(fitted(), &path);
     let f = flight(L, 32, 4.0, false);
     for r in fitted().mode_results() {
         let mut det = QuadFormerDetector::load(&path).unwrap();
@@ -219,7 +233,7 @@ fn the_streaming_threshold_is_chosen_on_validation_streaming_scores_and_saved() 
     }
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
-    det.save(&path).unwrap();
+    save(det, &path);
     assert_eq!(QuadFormerDetector::load(&path).unwrap().streaming_threshold(), want);
     // A manifest written before streaming thresholds existed streams at the batch threshold.
     let text = std::fs::read_to_string(&path).unwrap();
