@@ -94,6 +94,16 @@ fn check_results(path: &Path, m: &Manifest) -> Result<()> {
     Ok(())
 }
 
+/// A JSON error's message without the ` at line L column C` serde_json appends (the caller
+/// reports the position once, itself).
+fn json_message(e: &serde_json::Error) -> String {
+    let msg = e.to_string();
+    match msg.rsplit_once(" at line ") {
+        Some((head, _)) if e.line() > 0 => head.to_owned(),
+        _ => msg,
+    }
+}
+
 /// Whether `name` is a plain file name: one normal path component (no `/`, `..`, root).
 fn is_plain_name(name: &str) -> bool {
     !name.contains(['/', '\\']) && Path::new(name).file_name().is_some_and(|n| n == name)
@@ -167,8 +177,9 @@ impl QuadFormerDetector {
     /// malformed, truncated, corrupted or mismatched checkpoint.
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(io(path))?;
-        let manifest: Manifest = serde_json::from_str(&text)
-            .map_err(|e| ck(path, format!("malformed manifest at line {}, column {}: {e}", e.line(), e.column())))?;
+        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| {
+            ck(path, format!("malformed manifest at line {}, column {}: {}", e.line(), e.column(), json_message(&e)))
+        })?;
         if manifest.format != FORMAT {
             return Err(ck(path, format!("format is `{}`, expected `{FORMAT}`", manifest.format)));
         }

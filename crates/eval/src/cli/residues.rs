@@ -4,7 +4,8 @@
 //! The EKF (`ekf_residue::residues::generate_residues`) runs on the streams of the directory.
 //! Its noise model is, in order of precedence: the `--filter-config` file (keys left out keep
 //! the base values), else the simulator settings of the directory's `config.toml` when it was
-//! made by `quadformer simulate` (`FilterConfig::for_sim`, a consistent filter), else the
+//! made by `quadformer simulate` (`FilterConfig::for_sim`, a consistent filter; a
+//! `config.toml` that does not parse is an error, not a silent fall-back), else the
 //! documented defaults (`FilterConfig::new`). Labels come from `attack.csv` when present: a
 //! residue step is attacked when the GPS fix at its time is (`eval::io::labels_at`).
 
@@ -155,13 +156,19 @@ fn filter_config(args: &Args, flight: &FlightDir, model: ModelKind) -> Result<Fi
     let base = match &flight.config_toml {
         Some(text) => {
             let path = args.input.join(CONFIG_FILE);
-            match FlightConfig::from_toml(&path, text) {
-                Ok(cfg) => FilterConfig::for_sim(model, &cfg.sim),
-                Err(e) => {
-                    eprintln!("warning: {e}; using the default filter settings");
-                    FilterConfig::new(model)
-                }
-            }
+            // A config that does not parse would silently change the noise model: refuse it.
+            let cfg = FlightConfig::from_toml(&path, text).map_err(|e| CliError::Input {
+                path: path.clone(),
+                msg: format!(
+                    "{}\n(the filter's noise model is taken from this file; fix it, or remove it to use the \
+                     documented default filter settings)",
+                    match e {
+                        IoError::Toml { msg, .. } => msg,
+                        other => other.to_string(),
+                    }
+                ),
+            })?;
+            FilterConfig::for_sim(model, &cfg.sim)
         }
         None => FilterConfig::new(model),
     };

@@ -26,8 +26,9 @@ pub struct Args {
     /// Output flight directory (created atomically; must not exist or be empty unless --force).
     #[arg(long, value_name = "DIR", required_unless_present = "print_default_config")]
     pub out: Option<PathBuf>,
-    /// Override the config's master seed.
-    #[arg(long)]
+    /// Override the config's master seed (at most 2^63 − 1: the seed is written to config.toml,
+    /// whose integers are signed 64-bit).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(..=crate::io::MAX_SEED))]
     pub seed: Option<u64>,
     /// Replace DIR if it exists (the old directory is removed only after the new one is complete).
     #[arg(long)]

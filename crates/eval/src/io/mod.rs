@@ -40,7 +40,7 @@ pub use atomic::{
 };
 pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, labels_at, read_attack, write_attack};
 pub use error::{IoError, Result};
-pub use flight_config::{FlightConfig, SeedStream, TrajectoryConfig, TrajectoryKind};
+pub use flight_config::{FlightConfig, MAX_SEED, SeedStream, TrajectoryConfig, TrajectoryKind};
 pub use flight_dir::{
     ATTACK_FILE, ATTITUDE_FILE, CONFIG_FILE, FlightDir, GPS_FILE, IMU_FILE, TRUTH_FILE, VO_FILE, read_flight_dir,
     write_flight_dir,
@@ -48,7 +48,8 @@ pub use flight_dir::{
 pub use output_check::{Input, Output, check_outputs};
 pub use residues::{CovarianceLayout, r_column, read_residues, s_column, write_residues};
 pub use streams::{
-    ATTITUDE_COLUMNS, GPS_COLUMNS, GPS_GEODETIC_COLUMNS, IMU_COLUMNS, TRUTH_COLUMNS, VO_COLUMNS, read_attitude,
-    read_gps, read_imu, read_truth, read_vo, write_attitude, write_gps, write_imu, write_truth, write_vo,
+    ATTITUDE_COLUMNS, GPS_COLUMNS, GPS_GEODETIC_COLUMNS, IMU_COLUMNS, MAX_ACCEL_M_S2, MAX_ANGLE_RAD, MAX_GYRO_RAD_S,
+    MAX_POSITION_M, MAX_SPEED_M_S, TRUTH_COLUMNS, VO_COLUMNS, read_attitude, read_gps, read_imu, read_truth, read_vo,
+    write_attitude, write_gps, write_imu, write_truth, write_vo,
 };
 pub use toml_merge::merge_over;
