@@ -237,6 +237,11 @@ pub struct DatasetConfig {
     pub seed: u64,
 }
 
+/// Budget of one flight of a dataset, seconds (the paper's flights are 150 s).
+pub const MAX_FLIGHT_DURATION_S: f64 = 3_600.0;
+/// Budget of residue steps per split (the paper's training split has 83,700).
+pub const MAX_SPLIT_STEPS: usize = 10_000_000;
+
 impl DatasetConfig {
     /// The paper-scale cell `(model, noise, attack)` with every other value at its default.
     ///
@@ -290,8 +295,11 @@ impl DatasetConfig {
     /// [`DatasetError::Config`] or [`DatasetError::AttackConfig`] naming the field.
     pub fn check(&self) -> Result<ValidDatasetConfig> {
         let bad = |field, msg: String| Err(DatasetError::Config { field, msg });
-        if !(self.flight_duration_s.is_finite() && self.flight_duration_s >= 10.0) {
-            return bad("flight_duration_s", format!("must be finite and >= 10 s, got {}", self.flight_duration_s));
+        if !(self.flight_duration_s.is_finite() && (10.0..=MAX_FLIGHT_DURATION_S).contains(&self.flight_duration_s)) {
+            return bad(
+                "flight_duration_s",
+                format!("must be between 10 and {MAX_FLIGHT_DURATION_S} s, got {}", self.flight_duration_s),
+            );
         }
         let f = self.labelled_fraction;
         if !(f.is_finite() && (0.0..=1.0).contains(&f)) {
@@ -300,6 +308,12 @@ impl DatasetConfig {
         for split in Split::ALL {
             if self.steps.of(split) == 0 {
                 return bad("steps", format!("{split} needs at least one step"));
+            }
+            if self.steps.of(split) > MAX_SPLIT_STEPS {
+                return bad(
+                    "steps",
+                    format!("{split}: {} steps exceed the budget of {MAX_SPLIT_STEPS}", self.steps.of(split)),
+                );
             }
         }
         if self.residue_rate_hz() <= 0.0 {
@@ -917,6 +931,18 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sizes_beyond_their_budget_are_refused_by_name() {
+        let base = DatasetConfig::quick(ModelKind::ModelI, NoiseShape::Gaussian, AttackKind::Sparse);
+        let long = DatasetConfig { flight_duration_s: 1e9, ..base.clone() };
+        let e = long.check().unwrap_err().to_string();
+        assert!(e.contains("`flight_duration_s`: must be between 10 and 3600 s"), "{e}");
+        let mut many = base;
+        many.steps.train = MAX_SPLIT_STEPS + 1;
+        let e = many.check().unwrap_err().to_string();
+        assert!(e.contains("exceed the budget of 10000000"), "{e}");
+    }
 
     #[test]
     fn labels_follow_gps_fixes_and_default_to_clean() {

@@ -166,6 +166,47 @@ fn model_directories_are_closed_and_checked() {
 }
 
 #[test]
+fn sizes_that_drive_allocations_are_budgeted_before_allocating() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("long.toml");
+    std::fs::write(&cfg, "duration_s = 1e9\n").unwrap();
+    let err = fails(&["simulate", "--config", s(&cfg), "--out", s(&tmp.path().join("x"))]);
+    assert!(err.contains("`duration_s`") && err.contains("more than the 10000000 one flight may hold"), "{err}");
+    let err = fails(&["reproduce-tables", "--seeds", "4294967296", "--out", s(&tmp.path().join("res"))]);
+    assert!(err.contains("--seeds must be between 1 and 100"), "{err}");
+
+    let fl = flight(tmp.path(), "flight");
+    let ds = tmp.path().join("ds");
+    std::fs::create_dir_all(&ds).unwrap();
+    ok(&["residues", "--model", "I", "--in", s(&fl), "--out", s(&ds.join("a.csv"))]);
+    let cases = [
+        ("svm", "[svm]\nmax_train = 1000000000\n", "`max_train`: 1000000000 exceeds the budget of 10000"),
+        ("cnn", "[cnn]\nhidden = 1000000000\n", "`hidden`: 1000000000 exceeds the budget of 4096"),
+        ("quadformer", "[quadformer.net]\nd_model = 1000000000\n", "`net.d_model`: 1000000000 exceeds the budget"),
+        ("quadformer", "[quadformer.window]\nlen = 1000000000\n", "window.len"),
+    ];
+    for (method, toml, needle) in cases {
+        std::fs::write(&cfg, toml).unwrap();
+        let out = tmp.path().join("model");
+        let err = fails(&[
+            "train",
+            "--method",
+            method,
+            "--quick",
+            "--config",
+            s(&cfg),
+            "--train",
+            s(&ds),
+            "--valid",
+            s(&ds),
+            "--out",
+            s(&out),
+        ]);
+        assert!(err.contains(needle), "{method}: {err}");
+    }
+}
+
+#[test]
 fn messages_name_each_file_once() {
     let tmp = tempfile::tempdir().unwrap();
     let (cfg, out) = (tmp.path().join("cfg"), tmp.path().join("out"));

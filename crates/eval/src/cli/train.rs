@@ -272,6 +272,16 @@ pub fn method_configs(path: Option<&Path>, quick: bool, seed: u64) -> Result<Met
     crate::io::merge_over(&mut merged, user);
     let cfgs: MethodConfigs =
         merged.try_into().map_err(|e: toml::de::Error| config_err(e.message().trim().to_owned()))?;
+    // Sizes are checked against their budgets here, before any data is read.
+    let checks: [(&str, Result<(), String>); 4] = [
+        ("quadformer", cfgs.quadformer.check().map_err(|e| e.to_string())),
+        ("cnn", cfgs.cnn.0.check().map_err(|e| e.to_string())),
+        ("lstm", cfgs.lstm.0.check().map_err(|e| e.to_string())),
+        ("svm", cfgs.svm.check().map_err(|e| e.to_string())),
+    ];
+    for (table, r) in checks {
+        r.map_err(|e| config_err(format!("[{table}]: {e}")))?;
+    }
     Ok(cfgs.seeded(seed))
 }
 
