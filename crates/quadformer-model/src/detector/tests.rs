@@ -263,3 +263,74 @@ fn detectors_and_configs_are_send_sync() {
     check::<QuadFormerConfig>();
     check::<crate::window::Windows>();
 }
+
+/// Every JSON pointer of `v`'s leaves and containers.
+fn json_pointers(v: &serde_json::Value, here: String, out: &mut Vec<String>) {
+    match v {
+        serde_json::Value::Object(m) => {
+            for (k, c) in m {
+                json_pointers(c, format!("{here}/{k}"), out);
+            }
+        }
+        serde_json::Value::Array(a) => {
+            for (i, c) in a.iter().enumerate() {
+                json_pointers(c, format!("{here}/{i}"), out);
+            }
+        }
+        _ => {}
+    }
+    out.push(here);
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig {
+        cases: 256,
+        failure_persistence: None,
+        ..proptest::prelude::ProptestConfig::default()
+    })]
+
+    /// A checkpoint whose manifest has any one field replaced by a hostile value, or whose
+    /// weights have a byte changed, loads or fails with an error: never a panic, an abort or an
+    /// allocation beyond the budgets.
+    #[test]
+    fn hostile_checkpoints_never_panic(
+        which in proptest::prelude::any::<proptest::sample::Index>(),
+        value in proptest::prop_oneof![
+            proptest::strategy::Just(serde_json::json!(null)),
+            proptest::strategy::Just(serde_json::json!(-1)),
+            proptest::strategy::Just(serde_json::json!(0)),
+            proptest::strategy::Just(serde_json::json!(1e300)),
+            proptest::strategy::Just(serde_json::json!(u64::MAX)),
+            proptest::strategy::Just(serde_json::json!(1_000_000_000)),
+            proptest::strategy::Just(serde_json::json!("../qf.safetensors")),
+            proptest::strategy::Just(serde_json::json!("")),
+            proptest::strategy::Just(serde_json::json!([])),
+            proptest::strategy::Just(serde_json::json!({})),
+        ],
+        flip in proptest::prelude::any::<Option<(proptest::sample::Index, u8)>>(),
+    ) {
+        static GOOD: OnceLock<(String, Vec<u8>)> = OnceLock::new();
+        let (json, weights) = GOOD.get_or_init(|| {
+            let f = fitted().encode("qf.safetensors").unwrap();
+            (f.manifest, f.weights)
+        });
+        let good: serde_json::Value = serde_json::from_str(json).unwrap();
+        let mut all = Vec::new();
+        json_pointers(&good, String::new(), &mut all);
+        let mut bad = good.clone();
+        let pointer: &String = which.get(&all);
+        if let Some(v) = bad.pointer_mut(pointer) {
+            *v = value;
+        }
+        let mut w = weights.clone();
+        if let Some((at, byte)) = flip {
+            let i = at.index(w.len());
+            w[i] = byte;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("qf.json");
+        std::fs::write(&path, bad.to_string()).unwrap();
+        std::fs::write(dir.path().join("qf.safetensors"), &w).unwrap();
+        let _ = QuadFormerDetector::load(&path);
+    }
+}
