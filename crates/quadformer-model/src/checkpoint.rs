@@ -5,9 +5,12 @@
 //! [`QuadFormerDetector::encode`] gives the manifest text and the weights bytes; the caller
 //! writes them (eval writes `qf.json` and `qf.safetensors` atomically). `load` checks,
 //! in order: the manifest parses (unknown fields are errors), its format name and version, the
-//! weights file's size and hash (truncation or corruption), the tensor names against the
-//! network built from the config, and every shape (mismatch); each failure is a
-//! [`ModelError::Checkpoint`] naming the file. A round trip gives bit-identical scores.
+//! configuration (every field, and the size budgets of window, widths, depths and batches),
+//! `weights_file` is a plain file name beside the manifest, the weights file's size and hash
+//! (truncation or corruption), the normaliser and the scoring results (finite thresholds, F1
+//! in [0, 1], no mode twice), the tensor names against the network built from the config, and
+//! every shape (mismatch); each failure is a [`ModelError::Checkpoint`] naming the file. A
+//! round trip gives bit-identical scores.
 
 use std::path::Path;
 
@@ -170,7 +173,7 @@ impl QuadFormerDetector {
         Ok(CheckpointFiles { manifest, weights })
     }
 
-    /// Loads a detector saved by [`QuadFormerDetector::save`] (checks in the module docs).
+    /// Loads a detector from the files of [`QuadFormerDetector::encode`] (checks in the module docs).
     ///
     /// # Errors
     /// [`ModelError::Io`] for a missing file; [`ModelError::Checkpoint`] naming the file for a
