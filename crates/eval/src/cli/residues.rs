@@ -17,7 +17,7 @@ use uav_dynamics::TruthSample;
 use crate::cli::CliError;
 use crate::io::{
     ATTITUDE_FILE, CONFIG_FILE, CovarianceLayout, FlightConfig, FlightDir, GPS_FILE, Input, IoError, Output, VO_FILE,
-    check_outputs, labels_at, merge_over, read_flight_dir, write_residues, write_truth,
+    check_outputs, commit_all, labels_at, merge_over, read_flight_dir, stage_residues, stage_truth,
 };
 
 /// Which EKF model to run (paper sec:residue_generator).
@@ -109,15 +109,17 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         (Some(attack), false) => Some(labels_at(out.series.t(), attack)),
         _ => None,
     };
-    write_residues(&args.out, &out.series, labels.as_deref(), args.covariance.into())?;
+    // Both outputs are staged and committed together: a failure writing either leaves neither.
+    let mut staged = vec![stage_residues(&args.out, &out.series, labels.as_deref(), args.covariance.into())?];
     if let Some(path) = &args.estimates {
         let rows: Vec<TruthSample> = out
             .estimates
             .iter()
             .map(|e| TruthSample { t: e.t, p: e.p, q: e.q, v: e.v, b_g: e.b_g, b_a: e.b_a })
             .collect();
-        write_truth(path, &rows)?;
+        staged.push(stage_truth(path, &rows)?);
     }
+    commit_all(staged)?;
     let n = out.series.len();
     #[allow(clippy::cast_precision_loss)] // step counts are far below 2^52
     let mean_nis = out.series.nis().iter().sum::<f64>() / n.max(1) as f64;

@@ -186,15 +186,59 @@ pub fn remove_stale_temps(dir: &Path) {
 /// when the temporary cannot be created, synced or renamed, or whatever `write` returns; in
 /// every error case `path` is untouched and the temporary removed.
 pub fn write_file_atomic(path: &Path, write: impl FnOnce(File) -> Result<File>) -> Result<()> {
-    write_path_atomic(path, "", |tmp| {
-        let file = std::fs::OpenOptions::new().write(true).truncate(true).open(tmp).map_err(|source| IoError::Fs {
-            path: path.to_owned(),
-            op: "open",
-            source,
-        })?;
-        let file = write(file)?;
-        file.sync_all().map_err(|source| IoError::Fs { path: path.to_owned(), op: "sync", source })
-    })
+    stage_file(path, write)?.commit()
+}
+
+/// A complete file in its temporary, to be renamed to its final name by [`Staged::commit`] or
+/// [`commit_all`]; dropped uncommitted, the temporary is removed.
+#[derive(Debug)]
+pub struct Staged {
+    tmp: tempfile::NamedTempFile,
+    path: PathBuf,
+}
+
+impl Staged {
+    /// Renames the file into place (checking again that the final name is replaceable).
+    ///
+    /// # Errors
+    /// [`IoError::Unsafe`] or [`IoError::Fs`] naming the final path.
+    pub fn commit(self) -> Result<()> {
+        check_replaceable(&self.path, OutputKind::File)?;
+        let path = self.path;
+        self.tmp.persist(&path).map_err(|e| IoError::Fs { path, op: "rename into place", source: e.error })?;
+        Ok(())
+    }
+}
+
+/// Writes `path`'s contents as [`write_file_atomic`] does, but leaves the file in its
+/// temporary: several outputs of one command are staged, then committed together
+/// ([`commit_all`]), so a failure while writing any of them leaves none.
+///
+/// # Errors
+/// As [`write_file_atomic`].
+pub fn stage_file(path: &Path, write: impl FnOnce(File) -> Result<File>) -> Result<Staged> {
+    check_replaceable(path, OutputKind::File)?;
+    let dir = parent_of(path);
+    create_dir_all(&dir)?;
+    remove_stale_temps(&dir);
+    let tmp = temp_file_in(&dir, "")?;
+    // Temporary files are created private (0600); the output is an ordinary data file.
+    set_mode(tmp.path(), 0o644)?;
+    let file = tmp.reopen().map_err(|source| IoError::Fs { path: path.to_owned(), op: "open", source })?;
+    let file = write(file)?;
+    file.sync_all().map_err(|source| IoError::Fs { path: path.to_owned(), op: "sync", source })?;
+    Ok(Staged { tmp, path: path.to_owned() })
+}
+
+/// Commits staged files: every final name is checked first, then each is renamed into place.
+///
+/// # Errors
+/// As [`Staged::commit`]; when a check fails, nothing is renamed.
+pub fn commit_all(files: Vec<Staged>) -> Result<()> {
+    for f in &files {
+        check_replaceable(&f.path, OutputKind::File)?;
+    }
+    files.into_iter().try_for_each(Staged::commit)
 }
 
 /// Writes `path` atomically through a temporary *path* (ending in `suffix`, e.g. `.png` for
@@ -501,5 +545,24 @@ mod tests {
         assert!(
             out.join("plots/a.png").is_file() && out.join("scenarios.csv").is_file() && out.join("datasets").is_dir()
         );
+    }
+
+    #[test]
+    fn staged_files_appear_together_or_not_at_all() {
+        use std::io::Write as _;
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.csv"), dir.path().join("b.csv"));
+        let fill = |mut f: File| -> Result<File> {
+            f.write_all(b"t\n").unwrap();
+            Ok(f)
+        };
+        let first = stage_file(&a, fill).unwrap();
+        let failed = stage_file(&b, |_| Err(IoError::Inconsistent { path: b.clone(), msg: "boom".into() }));
+        assert!(failed.is_err());
+        drop(first); // the command gives up: nothing was committed
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        commit_all(vec![stage_file(&a, fill).unwrap(), stage_file(&b, fill).unwrap()]).unwrap();
+        assert!(a.is_file() && b.is_file());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
     }
 }

@@ -35,8 +35,9 @@ mod table;
 mod toml_merge;
 
 pub use atomic::{
-    OutputKind, Overwrite, TEMP_PREFIX, check_dir_output, check_replaceable, remove_stale_temps, write_bytes_atomic,
-    write_dir_atomic, write_file_atomic, write_into_dir_atomic, write_path_atomic, write_text_atomic,
+    OutputKind, Overwrite, Staged, TEMP_PREFIX, check_dir_output, check_replaceable, commit_all, remove_stale_temps,
+    stage_file, write_bytes_atomic, write_dir_atomic, write_file_atomic, write_into_dir_atomic, write_path_atomic,
+    write_text_atomic,
 };
 pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, labels_at, read_attack, write_attack};
 pub use error::{IoError, Result};
@@ -46,10 +47,10 @@ pub use flight_dir::{
     write_flight_dir,
 };
 pub use output_check::{Input, Output, check_outputs};
-pub use residues::{CovarianceLayout, r_column, read_residues, s_column, write_residues};
+pub use residues::{CovarianceLayout, r_column, read_residues, s_column, stage_residues, write_residues};
 pub use streams::{
     ATTITUDE_COLUMNS, GPS_COLUMNS, GPS_GEODETIC_COLUMNS, IMU_COLUMNS, MAX_ACCEL_M_S2, MAX_ANGLE_RAD, MAX_GYRO_RAD_S,
     MAX_POSITION_M, MAX_SPEED_M_S, TRUTH_COLUMNS, VO_COLUMNS, read_attitude, read_gps, read_imu, read_truth, read_vo,
-    write_attitude, write_gps, write_imu, write_truth, write_vo,
+    stage_truth, write_attitude, write_gps, write_imu, write_truth, write_vo,
 };
 pub use toml_merge::merge_over;

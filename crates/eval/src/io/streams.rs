@@ -19,7 +19,7 @@ use std::path::Path;
 use ekf_residue::geodetic::{Geodetic, LocalEnu};
 use uav_dynamics::{AttitudeSample, GpsSample, ImuSample, TruthSample, VoSample};
 
-use crate::io::atomic::write_file_atomic;
+use crate::io::atomic::{Staged, stage_file};
 use crate::io::error::{IoError, Result};
 use crate::io::table::{CsvIn, CsvOut, Row};
 
@@ -181,7 +181,13 @@ pub(crate) fn read_records<R: CsvRecord>(path: &Path) -> Result<Vec<R>> {
 /// [`IoError::Unwritable`] for a non-finite value (nothing is written); [`IoError::Fs`] on
 /// file-system failure.
 pub(crate) fn write_records<R: CsvRecord>(path: &Path, records: &[R]) -> Result<()> {
-    write_file_atomic(path, |file| {
+    stage_records(path, records)?.commit()
+}
+
+/// Writes records `R` as [`write_records`] does into the file's temporary, to be committed
+/// with the other outputs of a command.
+pub(crate) fn stage_records<R: CsvRecord>(path: &Path, records: &[R]) -> Result<Staged> {
+    stage_file(path, |file| {
         let mut out = CsvOut::new(path, file, R::COLUMNS.iter().map(|s| (*s).to_owned()).collect())?;
         for r in records {
             r.emit(&mut out)?;
@@ -222,6 +228,15 @@ stream_io!(read_imu, write_imu, ImuSample, "imu.csv");
 stream_io!(read_attitude, write_attitude, AttitudeSample, "attitude.csv");
 stream_io!(read_vo, write_vo, VoSample, "vo.csv");
 stream_io!(read_truth, write_truth, TruthSample, "truth.csv");
+
+/// Writes `truth.csv` as [`write_truth`] does into its temporary, to be committed with the
+/// other outputs of a command (`crate::io::commit_all`).
+///
+/// # Errors
+/// As [`write_truth`].
+pub fn stage_truth(path: &Path, samples: &[TruthSample]) -> Result<Staged> {
+    stage_records(path, samples)
+}
 
 /// Geodetic columns accepted in `gps.csv` instead of `p_x, p_y, p_z`.
 pub const GPS_GEODETIC_COLUMNS: [&str; 4] = ["t", "lat_deg", "lon_deg", "h_m"];
