@@ -144,6 +144,18 @@ fn a_failing_command_leaves_nothing() {
 }
 
 #[test]
+fn a_failing_fuse_leaves_no_plots() {
+    let tmp = tempfile::tempdir().unwrap();
+    // A CUSUM model of Model I channels: the closed loop (Model II) cannot feed it, so the
+    // detected case fails after the other cases have drawn their plots.
+    let (_, model) = model(tmp.path());
+    let out = tmp.path().join("fused");
+    let err = fails(&["fuse", "--scenario", "diagonal", "--detector", "cusum", "--model", s(&model), "--out", s(&out)]);
+    assert!(err.contains("detector channel `att_roll` not in the innovation"), "{err}");
+    assert!(!out.exists(), "nothing under --out after a failed fuse");
+}
+
+#[test]
 fn temporaries_of_a_killed_run_are_removed_and_long_names_work() {
     let tmp = tempfile::tempdir().unwrap();
     // What a killed `simulate` leaves: a temporary directory of a process that is gone (PID 0
