@@ -9,7 +9,9 @@
 //!
 //! Model directory (decision 081), written atomically:
 //! - `model.json` ([`ModelManifest`]): format name and version, method, channels, fitted
-//!   threshold, seed, the method configurations used, and how the fitted detector is stored;
+//!   threshold, seed, the method configurations used, and how the fitted detector is stored
+//!   (plain file names inside the directory; for QUADFormer with the SHA-256 of its checkpoint
+//!   manifest); [`read_manifest`] validates every field;
 //! - QUADFormer: `quadformer.json` + `quadformer.safetensors` (the checkpoint of
 //!   `quadformer_model::checkpoint`: manifest with normaliser, scoring mode and threshold,
 //!   weights with size and SHA-256);
