@@ -35,6 +35,49 @@ use crate::common::{fit_channels, labelled_valid};
 use crate::error::{BaselineError, Result};
 use crate::lstm::LstmLayer;
 
+/// Budget of `hidden` (CNN channels, LSTM hidden size): weights and activations grow with
+/// its square.
+pub const MAX_HIDDEN: usize = 4_096;
+
+impl NeuralConfig {
+    /// Checks sizes and ranges, and the budget [`MAX_HIDDEN`].
+    ///
+    /// # Errors
+    /// [`BaselineError::Config`] naming the field.
+    pub fn check(&self) -> Result<()> {
+        self.window.check()?;
+        self.train.check()?;
+        if !(self.pos_weight.is_finite() && self.pos_weight >= 0.0) {
+            return Err(BaselineError::Config {
+                field: "pos_weight",
+                msg: format!("must be finite and non-negative, got {}", self.pos_weight),
+            });
+        }
+        if self.hidden > MAX_HIDDEN {
+            return Err(BaselineError::Config {
+                field: "hidden",
+                msg: format!("{} exceeds the budget of {MAX_HIDDEN}", self.hidden),
+            });
+        }
+        if self.kernel > self.window.len {
+            return Err(BaselineError::Config {
+                field: "kernel",
+                msg: format!("{} exceeds the window length {}", self.kernel, self.window.len),
+            });
+        }
+        if self.hidden == 0 || self.kernel == 0 || self.score_stride == 0 {
+            return Err(BaselineError::Config {
+                field: "hidden",
+                msg: format!(
+                    "need hidden, kernel and score_stride ≥ 1, got {}, {}, {}",
+                    self.hidden, self.kernel, self.score_stride
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
 /// Windows per forward pass when scoring.
 const SCORE_BATCH: usize = 64;
 
@@ -282,23 +325,7 @@ fn fit_neural<N: PerStepNet>(
     valid: &LabelledResidues,
     build: impl FnOnce(usize, VarBuilder) -> candle_core::Result<N>,
 ) -> Result<NeuralDetector<N>> {
-    cfg.window.check()?;
-    cfg.train.check()?;
-    if !(cfg.pos_weight.is_finite() && cfg.pos_weight >= 0.0) {
-        return Err(BaselineError::Config {
-            field: "pos_weight",
-            msg: format!("must be finite and non-negative, got {}", cfg.pos_weight),
-        });
-    }
-    if cfg.hidden == 0 || cfg.kernel == 0 || cfg.score_stride == 0 {
-        return Err(BaselineError::Config {
-            field: "hidden",
-            msg: format!(
-                "need hidden, kernel and score_stride ≥ 1, got {}, {}, {}",
-                cfg.hidden, cfg.kernel, cfg.score_stride
-            ),
-        });
-    }
+    cfg.check()?;
     let channels = fit_channels(train_split, valid)?;
     let labelled = labelled_only(train_split)?;
     let norm = Normaliser::fit(&labelled, cfg.window.features)?;

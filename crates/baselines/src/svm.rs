@@ -128,10 +128,34 @@ fn standardise(x: &mut [f64], mean: &[f64], std: &[f64]) {
     }
 }
 
+/// Budget of `max_train`: the kernel matrix holds `max_train²` numbers (800 MB at the budget).
+pub const MAX_SVM_TRAIN: usize = 10_000;
+/// Budget of `window`: every step's feature row holds `window × channels` numbers.
+pub const MAX_SVM_WINDOW: usize = 2_000;
+
 impl SvmConfig {
-    fn check(&self) -> Result<()> {
+    /// Checks sizes and ranges, and the budgets [`MAX_SVM_TRAIN`] and [`MAX_SVM_WINDOW`].
+    ///
+    /// # Errors
+    /// [`BaselineError::Config`] naming the field.
+    pub fn check(&self) -> Result<()> {
         if self.window == 0 {
             return Err(BaselineError::Config { field: "window", msg: "must be at least 1".into() });
+        }
+        if self.window > MAX_SVM_WINDOW {
+            return Err(BaselineError::Config {
+                field: "window",
+                msg: format!("{} exceeds the budget of {MAX_SVM_WINDOW}", self.window),
+            });
+        }
+        if self.max_train > MAX_SVM_TRAIN {
+            return Err(BaselineError::Config {
+                field: "max_train",
+                msg: format!(
+                    "{} exceeds the budget of {MAX_SVM_TRAIN} (the kernel matrix has max_train² entries)",
+                    self.max_train
+                ),
+            });
         }
         if self.max_train < 4 {
             return Err(BaselineError::Config {

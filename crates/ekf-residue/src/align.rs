@@ -71,10 +71,40 @@ fn check_finite(stream: &'static str, idx: usize, t: f64, field: &'static str, v
     if v.iter().all(|x| x.is_finite()) { Ok(()) } else { Err(FilterError::NonFiniteInput { stream, idx, t, field }) }
 }
 
-/// Validate all streams: finite values, strictly increasing times, VO keyframes non-decreasing.
+/// Checks that no measurement comes after the IMU log ends, beyond one IMU interval (the
+/// last one) plus [`DEFAULT_TOLERANCE_S`]: the filter predicts with IMU samples and could only
+/// hold its state frozen there. A flight without IMU samples is left to the caller.
+fn check_imu_covers(streams: &SensorStreams) -> Result<(), FilterError> {
+    let n = streams.imu.len();
+    let (Some(last), Some(prev)) = (streams.imu.last(), n.checked_sub(2).and_then(|i| streams.imu.get(i))) else {
+        return Ok(());
+    };
+    let limit = last.t + (last.t - prev.t) + DEFAULT_TOLERANCE_S;
+    let streams_t: [(&'static str, Vec<f64>); 3] = [
+        ("gps", streams.gps.iter().map(|s| s.t).collect()),
+        ("attitude", streams.attitude.iter().map(|s| s.t).collect()),
+        ("vo", streams.vo.iter().map(|s| s.t).collect()),
+    ];
+    for (stream, times) in streams_t {
+        if let Some(idx) = times.iter().position(|&t| t > limit) {
+            return Err(FilterError::BeyondImu {
+                stream,
+                idx,
+                t: times[idx],
+                n_after: times.len() - idx - 1,
+                t_imu: last.t,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Validate all streams: finite values, strictly increasing times, VO keyframes non-decreasing,
+/// no measurement after the IMU log ends.
 ///
 /// # Errors
-/// [`FilterError::NonFiniteInput`] or [`FilterError::Unordered`] naming stream, index and time.
+/// [`FilterError::NonFiniteInput`] or [`FilterError::Unordered`] naming stream, index and time;
+/// [`FilterError::BeyondImu`] naming the first measurement after the IMU log.
 pub fn validate(streams: &SensorStreams) -> Result<(), FilterError> {
     check_times("imu", streams.imu.iter().map(|s| s.t))?;
     check_times("gps", streams.gps.iter().map(|s| s.t))?;
@@ -90,6 +120,7 @@ pub fn validate(streams: &SensorStreams) -> Result<(), FilterError> {
     for (i, s) in streams.attitude.iter().enumerate() {
         check_finite("attitude", i, s.t, "q", s.q.as_slice())?;
     }
+    check_imu_covers(streams)?;
     let mut kf_prev = 0;
     for (i, s) in streams.vo.iter().enumerate() {
         check_finite("vo", i, s.t, "p_rel", s.p_rel.as_slice())?;
@@ -190,5 +221,19 @@ mod tests {
             })
             .collect();
         assert_eq!(kinds, ["i0", "i1", "i2", "mSome(0)Some(0)", "mNoneSome(1)", "i3", "i4"]);
+    }
+
+    #[test]
+    fn measurements_after_the_imu_log_are_an_error() {
+        let imu: Vec<ImuSample> = (0..5)
+            .map(|k| ImuSample { t: 0.05 * f64::from(k), gyro: Vector3::zeros(), accel: Vector3::zeros() })
+            .collect();
+        let gps = |ts: &[f64]| ts.iter().map(|&t| GpsSample { t, p: Vector3::zeros() }).collect();
+        // One IMU interval past the last sample is still held; beyond that is not.
+        let held = SensorStreams { imu: imu.clone(), gps: gps(&[0.1, 0.25]), ..SensorStreams::default() };
+        assert!(align(&held, DEFAULT_TOLERANCE_S).is_ok());
+        let beyond = SensorStreams { imu, gps: gps(&[0.1, 0.2, 0.3, 0.4]), ..SensorStreams::default() };
+        let e = align(&beyond, DEFAULT_TOLERANCE_S).unwrap_err().to_string();
+        assert!(e.starts_with("gps sample 2 (t = 0.3 s) and 1 more come after the last IMU sample (t = 0.2 s)"), "{e}");
     }
 }

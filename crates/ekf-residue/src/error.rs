@@ -125,6 +125,23 @@ pub enum FilterError {
         /// Which field.
         field: &'static str,
     },
+    /// Measurements continue after the IMU log ends: the filter cannot predict to them.
+    #[error(
+        "{stream} sample {idx} (t = {t} s) and {n_after} more come after the last IMU sample (t = {t_imu} s); \
+         the filter cannot predict to them: trim the {stream} log or extend the IMU log"
+    )]
+    BeyondImu {
+        /// Stream name.
+        stream: &'static str,
+        /// Index of the first sample after the IMU log.
+        idx: usize,
+        /// Its time, seconds.
+        t: f64,
+        /// How many later samples of the stream are also beyond it.
+        n_after: usize,
+        /// Time of the last IMU sample, seconds.
+        t_imu: f64,
+    },
     /// Time stamps of one stream are not strictly increasing.
     #[error("{stream} sample {idx}: time {t} s is not after the previous {t_prev} s")]
     Unordered {

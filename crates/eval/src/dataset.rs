@@ -35,7 +35,6 @@
 //! ```
 
 use std::fmt;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -145,6 +144,9 @@ pub enum DatasetError {
         #[source]
         source: resilient_fusion::FusionError,
     },
+    /// Writing a cache file failed (`crate::io::write_bytes_atomic`).
+    #[error(transparent)]
+    Write(#[from] crate::io::IoError),
     /// Encoding the dataset failed.
     #[error("encoding dataset: {0}")]
     Encode(String),
@@ -274,6 +276,11 @@ pub struct DatasetConfig {
     pub protocol: ResidueProtocol,
 }
 
+/// Budget of one flight of a dataset, seconds (the paper's flights are 150 s).
+pub const MAX_FLIGHT_DURATION_S: f64 = 3_600.0;
+/// Budget of residue steps per split (the paper's training split has 83,700).
+pub const MAX_SPLIT_STEPS: usize = 10_000_000;
+
 impl DatasetConfig {
     /// The paper-scale cell `(model, noise, attack)` with every other value at its default.
     ///
@@ -328,8 +335,11 @@ impl DatasetConfig {
     /// [`DatasetError::Config`] or [`DatasetError::AttackConfig`] naming the field.
     pub fn check(&self) -> Result<ValidDatasetConfig> {
         let bad = |field, msg: String| Err(DatasetError::Config { field, msg });
-        if !(self.flight_duration_s.is_finite() && self.flight_duration_s >= 10.0) {
-            return bad("flight_duration_s", format!("must be finite and >= 10 s, got {}", self.flight_duration_s));
+        if !(self.flight_duration_s.is_finite() && (10.0..=MAX_FLIGHT_DURATION_S).contains(&self.flight_duration_s)) {
+            return bad(
+                "flight_duration_s",
+                format!("must be between 10 and {MAX_FLIGHT_DURATION_S} s, got {}", self.flight_duration_s),
+            );
         }
         let f = self.labelled_fraction;
         if !(f.is_finite() && (0.0..=1.0).contains(&f)) {
@@ -338,6 +348,12 @@ impl DatasetConfig {
         for split in Split::ALL {
             if self.steps.of(split) == 0 {
                 return bad("steps", format!("{split} needs at least one step"));
+            }
+            if self.steps.of(split) > MAX_SPLIT_STEPS {
+                return bad(
+                    "steps",
+                    format!("{split}: {} steps exceed the budget of {MAX_SPLIT_STEPS}", self.steps.of(split)),
+                );
             }
         }
         if self.residue_rate_hz() <= 0.0 {
@@ -993,21 +1009,26 @@ pub fn load_or_build(cfg: &ValidDatasetConfig, cache_dir: &Path) -> Result<(Data
     Ok((data, CacheOutcome::Built { path, reason, build_s }))
 }
 
-/// Write `bytes` to a temporary file beside `path`, flush it, then rename it into place.
+/// Writes `bytes` to `path` atomically (`crate::io::write_bytes_atomic`).
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path.parent().unwrap_or_else(|| Path::new("."));
-    let io = |source| DatasetError::Io { path: path.to_path_buf(), source };
-    std::fs::create_dir_all(dir).map_err(io)?;
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(io)?;
-    tmp.write_all(bytes).map_err(io)?;
-    tmp.as_file().sync_all().map_err(io)?;
-    tmp.persist(path).map_err(|e| io(e.error))?;
-    Ok(())
+    Ok(crate::io::write_bytes_atomic(path, bytes)?)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sizes_beyond_their_budget_are_refused_by_name() {
+        let base = DatasetConfig::quick(ModelKind::ModelI, NoiseShape::Gaussian, AttackKind::Sparse);
+        let long = DatasetConfig { flight_duration_s: 1e9, ..base.clone() };
+        let e = long.check().unwrap_err().to_string();
+        assert!(e.contains("`flight_duration_s`: must be between 10 and 3600 s"), "{e}");
+        let mut many = base;
+        many.steps.train = MAX_SPLIT_STEPS + 1;
+        let e = many.check().unwrap_err().to_string();
+        assert!(e.contains("exceed the budget of 10000000"), "{e}");
+    }
 
     #[test]
     fn labels_follow_gps_fixes_and_default_to_clean() {

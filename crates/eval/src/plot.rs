@@ -17,7 +17,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
-use crate::io::{IoError, write_text_atomic};
+use crate::io::{IoError, write_path_atomic, write_text_atomic};
 use crate::metrics::{MeanStd, RocCurve};
 
 /// Pixel size of every figure.
@@ -94,31 +94,15 @@ fn write_figure<F: Figure>(out_stem: &Path, fig: &F) -> Result<Vec<PathBuf>> {
     ensure_font()?;
     let png = out_stem.with_extension("png");
     let svg = out_stem.with_extension("svg");
-    let dir = match png.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&dir).map_err(|source| IoError::Fs {
-        path: dir.clone(),
-        op: "create directory",
-        source,
-    })?;
-
     // PNG: the bitmap backend picks the encoder from the extension, so the temporary file
     // keeps `.png`; it is renamed over the final name only after a successful encode.
-    let tmp = tempfile::Builder::new()
-        .prefix(".plot")
-        .suffix(".png")
-        .tempfile_in(&dir)
-        .map_err(|source| IoError::Fs { path: dir.clone(), op: "create a temporary file in", source })?;
-    {
+    write_path_atomic(&png, ".png", |tmp| -> Result<()> {
         let draw_err = |msg: String| PlotError::Draw { path: png.clone(), msg };
-        let root = BitMapBackend::new(tmp.path(), SIZE).into_drawing_area();
+        let root = BitMapBackend::new(tmp, SIZE).into_drawing_area();
         root.fill(&WHITE).map_err(|e| draw_err(e.to_string()))?;
         fig.draw(&root).map_err(draw_err)?;
-        root.present().map_err(|e| draw_err(e.to_string()))?;
-    }
-    tmp.persist(&png).map_err(|e| IoError::Fs { path: png.clone(), op: "rename into place", source: e.error })?;
+        root.present().map_err(|e| draw_err(e.to_string()))
+    })?;
 
     let mut text = String::new();
     {

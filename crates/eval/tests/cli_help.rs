@@ -28,20 +28,20 @@ fn simulate_help() {
     check(
         &["simulate", "-h"],
         expect![[r#"
-        Simulate a flight from a TOML config and write its sensor streams, truth and attack labels as a flight directory
+            Simulate a flight from a TOML config and write its sensor streams, truth and attack labels as a flight directory
 
-        Usage: quadformer simulate [OPTIONS]
+            Usage: quadformer simulate [OPTIONS]
 
-        Options:
-              --config <FILE.toml>    Flight config (TOML; docs/data-format.md "Flight config"). Keys left out keep their defaults; an empty file is a clean eight-shape flight
-              --out <DIR>             Output flight directory (created atomically; must not exist or be empty unless --force)
-              --seed <SEED>           Override the config's master seed
-              --force                 Replace DIR if it exists (the old directory is removed only after the new one is complete)
-              --no-truth              Do not write truth.csv (e.g. to keep a committed fixture small)
-              --print-default-config  Print the default config with every field explicit, and exit
-          -h, --help                  Print help
-          -V, --version               Print version
-    "#]],
+            Options:
+                  --config <FILE.toml>    Flight config (TOML; docs/data-format.md "Flight config"). Keys left out keep their defaults; an empty file is a clean eight-shape flight
+                  --out <DIR>             Output flight directory (created atomically; must not exist or be empty unless --force)
+                  --seed <SEED>           Override the config's master seed (at most 2^63 − 1: the seed is written to config.toml, whose integers are signed 64-bit)
+                  --force                 Replace DIR if it exists (the old directory is removed only after the new one is complete)
+                  --no-truth              Do not write truth.csv (e.g. to keep a committed fixture small)
+                  --print-default-config  Print the default config with every field explicit, and exit
+              -h, --help                  Print help
+              -V, --version               Print version
+        "#]],
     );
 }
 

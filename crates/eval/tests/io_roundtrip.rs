@@ -13,9 +13,16 @@ use nalgebra::{DMatrix, Vector3};
 use proptest::prelude::*;
 use uav_dynamics::{AttitudeSample, GpsSample, ImuSample, SensorStreams, TruthSample, VoSample};
 
-/// Any finite f64, including subnormals and extreme exponents.
+/// Any finite f64 within the readers' tightest plausibility bound (`MAX_GYRO_RAD_S`, 100),
+/// including subnormals and every exponent below it.
 fn finite() -> impl Strategy<Value = f64> {
-    prop_oneof![any::<f64>().prop_filter("finite", |v| v.is_finite()), -1e3..1e3f64, Just(0.1 + 0.2), Just(-0.0)]
+    prop_oneof![
+        any::<f64>().prop_filter("finite", |v| v.is_finite()).prop_map(|v| v % eval::io::MAX_GYRO_RAD_S),
+        -1e2..1e2f64,
+        Just(0.1 + 0.2),
+        Just(-0.0),
+        Just(5e-324)
+    ]
 }
 
 fn v3() -> impl Strategy<Value = Vector3<f64>> {

@@ -2,14 +2,17 @@
 //! manifest (config, channels, normaliser, scoring mode and threshold, every mode's validation
 //! result, and the SHA-256 and size of the weights file).
 //!
-//! `save("run/qf.json")` writes `run/qf.json` and `run/qf.safetensors`, each to a temporary
-//! file first and then renamed, so no partly written checkpoint is left behind. `load` checks,
+//! [`QuadFormerDetector::encode`] gives the manifest text and the weights bytes; the caller
+//! writes them (eval writes `qf.json` and `qf.safetensors` atomically). `load` checks,
 //! in order: the manifest parses (unknown fields are errors), its format name and version, the
-//! weights file's size and hash (truncation or corruption), the tensor names against the
-//! network built from the config, and every shape (mismatch); each failure is a
-//! [`ModelError::Checkpoint`] naming the file. A round trip gives bit-identical scores.
+//! configuration (every field, and the size budgets of window, widths, depths and batches),
+//! `weights_file` is a plain file name beside the manifest, the weights file's size and hash
+//! (truncation or corruption), the normaliser and the scoring results (finite thresholds, F1
+//! in [0, 1], no mode twice), the tensor names against the network built from the config, and
+//! every shape (mismatch); each failure is a [`ModelError::Checkpoint`] naming the file. A
+//! round trip gives bit-identical scores.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
@@ -63,30 +66,95 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ModelError + '_ {
     move |source| ModelError::Io { path: path.to_path_buf(), source }
 }
 
+/// Checks the manifest's numbers: thresholds and `crit_scale` finite, F1 values in [0, 1],
+/// at most one result per mode and the chosen mode among them.
+fn check_results(path: &Path, m: &Manifest) -> Result<()> {
+    let finite = |field: &str, v: f64| {
+        if v.is_finite() { Ok(()) } else { Err(ck(path, format!("{field} must be finite, got {v}"))) }
+    };
+    finite("chosen.threshold", m.chosen.threshold)?;
+    finite("crit_scale", m.crit_scale)?;
+    if let Some(t) = m.stream_threshold {
+        finite("stream_threshold", t)?;
+    }
+    let named = m.mode_results.iter().enumerate().map(|(i, r)| (format!("mode_results[{i}]"), r));
+    for (field, r) in named.chain([("chosen".to_owned(), &m.chosen)]) {
+        if r.threshold.is_nan() {
+            return Err(ck(path, format!("{field}.threshold is NaN")));
+        }
+        if !(0.0..=1.0).contains(&r.valid_f1) {
+            return Err(ck(path, format!("{field}.valid_f1 must be in [0, 1], got {}", r.valid_f1)));
+        }
+    }
+    for (i, r) in m.mode_results.iter().enumerate() {
+        if m.mode_results[..i].iter().any(|o| o.mode == r.mode) {
+            return Err(ck(path, format!("mode_results lists {:?} twice", r.mode)));
+        }
+    }
+    if !m.mode_results.is_empty() && !m.mode_results.iter().any(|r| r.mode == m.chosen.mode) {
+        return Err(ck(path, format!("chosen mode {:?} is not among mode_results", m.chosen.mode)));
+    }
+    Ok(())
+}
+
+/// A JSON error's message without the ` at line L column C` serde_json appends (the caller
+/// reports the position once, itself).
+fn json_message(e: &serde_json::Error) -> String {
+    let msg = e.to_string();
+    match msg.rsplit_once(" at line ") {
+        Some((head, _)) if e.line() > 0 => head.to_owned(),
+        _ => msg,
+    }
+}
+
+/// Whether `name` is a plain file name: one normal path component (no `/`, `..`, root).
+fn is_plain_name(name: &str) -> bool {
+    !name.contains(['/', '\\']) && Path::new(name).file_name().is_some_and(|n| n == name)
+}
+
 fn sha256_hex(bytes: &[u8]) -> String {
     Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
 }
 
-fn weights_path(manifest_path: &Path) -> PathBuf {
-    manifest_path.with_extension("safetensors")
+/// The two files of a checkpoint, encoded: the JSON manifest and the safetensors weights
+/// it names. The caller writes them (`eval::io` writes every output atomically).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CheckpointFiles {
+    /// Text of the JSON manifest.
+    pub manifest: String,
+    /// Bytes of the weights file.
+    pub weights: Vec<u8>,
 }
 
-fn tmp_path(path: &Path) -> PathBuf {
-    let mut name = path.file_name().map(|n| n.to_os_string()).unwrap_or_default();
-    name.push(".tmp");
-    path.with_file_name(name)
+/// The weights file name beside manifest `manifest_name`: the same stem, `.safetensors`.
+#[must_use]
+pub fn weights_file_name(manifest_name: &str) -> String {
+    Path::new(manifest_name).with_extension("safetensors").to_string_lossy().into_owned()
 }
 
 impl QuadFormerDetector {
-    /// Saves the detector as `path` (JSON manifest) and `path` with extension `safetensors`.
+    /// Encodes the detector as a checkpoint whose manifest names `weights_file` (a plain file
+    /// name beside the manifest, [`weights_file_name`] of the manifest's name).
     ///
     /// # Errors
-    /// [`ModelError::Io`] or [`ModelError::Candle`] on write failure.
-    pub fn save(&self, path: &Path) -> Result<()> {
-        let weights = weights_path(path);
-        let weights_tmp = tmp_path(&weights);
-        self.net.varmap().save(&weights_tmp)?;
-        let bytes = std::fs::read(&weights_tmp).map_err(io(&weights_tmp))?;
+    /// [`ModelError::Checkpoint`] if `weights_file` is not a plain file name or encoding fails.
+    pub fn encode(&self, weights_file: &str) -> Result<CheckpointFiles> {
+        let here = Path::new(weights_file);
+        if !is_plain_name(weights_file) {
+            return Err(ck(here, "weights_file must be a plain file name"));
+        }
+        let weights = {
+            let data = self
+                .net
+                .varmap()
+                .data()
+                .lock()
+                .map_err(|_| ModelError::Data { msg: "variable map lock poisoned".into() })?;
+            let tensors: Vec<(String, candle_core::Tensor)> =
+                data.iter().map(|(k, v)| (k.clone(), v.as_tensor().clone())).collect();
+            safetensors::tensor::serialize(tensors, None)
+                .map_err(|e| ck(here, format!("cannot encode the weights: {e}")))?
+        };
         let manifest = Manifest {
             format: FORMAT.into(),
             version: VERSION,
@@ -96,28 +164,25 @@ impl QuadFormerDetector {
             crit_scale: self.crit_scale,
             mode_results: self.mode_results.clone(),
             stream_threshold: Some(self.stream_threshold),
-            weights_file: weights.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
-            weights_bytes: bytes.len() as u64,
-            weights_sha256: sha256_hex(&bytes),
+            weights_file: weights_file.to_owned(),
+            weights_bytes: weights.len() as u64,
+            weights_sha256: sha256_hex(&weights),
         };
-        let json =
-            serde_json::to_string_pretty(&manifest).map_err(|e| ck(path, format!("cannot serialise manifest: {e}")))?;
-        let json_tmp = tmp_path(path);
-        std::fs::write(&json_tmp, json).map_err(io(&json_tmp))?;
-        std::fs::rename(&weights_tmp, &weights).map_err(io(&weights))?;
-        std::fs::rename(&json_tmp, path).map_err(io(path))?;
-        Ok(())
+        let manifest = serde_json::to_string_pretty(&manifest)
+            .map_err(|e| ck(here, format!("cannot serialise the manifest: {e}")))?;
+        Ok(CheckpointFiles { manifest, weights })
     }
 
-    /// Loads a detector saved by [`QuadFormerDetector::save`] (checks in the module docs).
+    /// Loads a detector from the files of [`QuadFormerDetector::encode`] (checks in the module docs).
     ///
     /// # Errors
     /// [`ModelError::Io`] for a missing file; [`ModelError::Checkpoint`] naming the file for a
     /// malformed, truncated, corrupted or mismatched checkpoint.
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(io(path))?;
-        let manifest: Manifest = serde_json::from_str(&text)
-            .map_err(|e| ck(path, format!("malformed manifest at line {}, column {}: {e}", e.line(), e.column())))?;
+        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| {
+            ck(path, format!("malformed manifest at line {}, column {}: {}", e.line(), e.column(), json_message(&e)))
+        })?;
         if manifest.format != FORMAT {
             return Err(ck(path, format!("format is `{}`, expected `{FORMAT}`", manifest.format)));
         }
@@ -129,8 +194,7 @@ impl QuadFormerDetector {
         }
         manifest.config.check()?;
         // The weights live beside the manifest: a plain file name, never a path.
-        let plain = Path::new(&manifest.weights_file).file_name().is_some_and(|n| n == manifest.weights_file.as_str());
-        if !plain {
+        if !is_plain_name(&manifest.weights_file) {
             return Err(ck(
                 path,
                 format!("weights_file must be a file name beside the manifest, got `{}`", manifest.weights_file),
@@ -151,11 +215,7 @@ impl QuadFormerDetector {
             .map_err(|e| ck(&weights, format!("not a safetensors file: {e}")))?;
         let dim = manifest.normaliser.dim();
         manifest.normaliser.check().map_err(|e| ck(path, e.to_string()))?;
-        if let Some(t) = manifest.stream_threshold
-            && !t.is_finite()
-        {
-            return Err(ck(path, format!("stream_threshold must be finite, got {t}")));
-        }
+        check_results(path, &manifest)?;
         let mut net = QuadFormerNet::new(&manifest.config.net, manifest.config.window.len, dim, 0)?;
         {
             let mut expected: Vec<String> = net

@@ -173,6 +173,12 @@ impl QuadFormerConfig {
             if v == 0 {
                 return Err(ModelError::Config { field, msg: "must be at least 1".into() });
             }
+            if field == "score.batch_size" && v > crate::train::MAX_BATCH_SIZE {
+                return Err(ModelError::Config {
+                    field,
+                    msg: format!("{v} exceeds the budget of {}", crate::train::MAX_BATCH_SIZE),
+                });
+            }
         }
         Ok(())
     }

@@ -108,8 +108,14 @@ impl Default for NetConfig {
     }
 }
 
+/// Budget of `d_model`, `d_ff` and `d_class` (each): ten times the paper-scale sizes, so a
+/// configuration or checkpoint cannot make the network allocate without bound.
+pub const MAX_WIDTH: usize = 8_192;
+/// Budget of `n_heads` and `n_layers` (each).
+pub const MAX_DEPTH: usize = 64;
+
 impl NetConfig {
-    /// Checks sizes and ranges.
+    /// Checks sizes and ranges, and the budgets [`MAX_WIDTH`] and [`MAX_DEPTH`].
     ///
     /// # Errors
     /// [`ModelError::Config`] naming the field.
@@ -123,6 +129,17 @@ impl NetConfig {
         }
         if self.n_layers == 0 || self.d_ff == 0 || self.d_class == 0 {
             return bad("net.n_layers", "n_layers, d_ff and d_class must be positive".into());
+        }
+        for (field, v, max) in [
+            ("net.d_model", self.d_model, MAX_WIDTH),
+            ("net.d_ff", self.d_ff, MAX_WIDTH),
+            ("net.d_class", self.d_class, MAX_WIDTH),
+            ("net.n_heads", self.n_heads, MAX_DEPTH),
+            ("net.n_layers", self.n_layers, MAX_DEPTH),
+        ] {
+            if v > max {
+                return bad(field, format!("{v} exceeds the budget of {max}"));
+            }
         }
         if !(self.p.is_finite() && self.p > 0.0) {
             return bad("net.p", format!("must be finite and positive, got {}", self.p));

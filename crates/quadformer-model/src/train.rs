@@ -95,6 +95,9 @@ impl Default for TrainConfig {
     }
 }
 
+/// Budget of every mini-batch size (training and scoring): a batch is allocated whole.
+pub const MAX_BATCH_SIZE: usize = 65_536;
+
 impl TrainConfig {
     /// Checks that sizes are positive and rates finite and non-negative.
     ///
@@ -107,6 +110,12 @@ impl TrainConfig {
         }
         if self.batch_size == 0 {
             return bad("train.batch_size", "must be at least 1");
+        }
+        if self.batch_size > MAX_BATCH_SIZE {
+            return Err(ModelError::Config {
+                field: "train.batch_size",
+                msg: format!("{} exceeds the budget of {MAX_BATCH_SIZE}", self.batch_size),
+            });
         }
         if !(self.lr.is_finite() && self.lr > 0.0) {
             return bad("train.lr", "must be finite and positive");

@@ -111,6 +111,9 @@ fn raw_features() -> Features {
 /// rather than an allocation the machine cannot make.
 pub const MAX_WINDOW_LEN: usize = 2_000;
 
+/// Budget of residue channels a model reads (the paper's residues have at most six).
+pub const MAX_CHANNELS: usize = 256;
+
 impl WindowConfig {
     /// Checks `2 ≤ len ≤` [`MAX_WINDOW_LEN`] and `1 ≤ stride`.
     ///
@@ -220,6 +223,11 @@ impl Normaliser {
     /// # Errors
     /// [`ModelError::Data`] naming what is wrong.
     pub fn check(&self) -> Result<()> {
+        if self.channels.len() > MAX_CHANNELS {
+            return Err(ModelError::Data {
+                msg: format!("normaliser: {} channels exceed the budget of {MAX_CHANNELS}", self.channels.len()),
+            });
+        }
         let dim = self.dim();
         if self.mean.len() != dim || self.std.len() != dim {
             return Err(ModelError::Data {

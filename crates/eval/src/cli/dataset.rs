@@ -17,7 +17,10 @@ use serde::Serialize;
 
 use crate::cli::CliError;
 use crate::dataset::{Dataset, Split, SplitSummary, ValidDatasetConfig, build, load_or_build};
-use crate::io::{CovarianceLayout, IoError, Overwrite, write_dir_atomic, write_residues, write_text_atomic};
+use crate::io::{
+    CovarianceLayout, Input, IoError, Output, Overwrite, check_dir_output, check_outputs, write_dir_atomic,
+    write_residues, write_text_atomic,
+};
 use crate::reproduce::{MatrixConfig, dataset_config, parse_cell};
 
 /// Name of the summary file in a dataset directory.
@@ -89,6 +92,10 @@ pub fn flight_file(index: usize) -> String {
 /// the dataset fails (naming split and flight), [`CliError::Io`] when writing fails.
 pub fn run(args: &Args) -> Result<(), CliError> {
     let input = |msg: String| CliError::Input { path: args.out.clone(), msg };
+    let overwrite = if args.force { Overwrite::Replace } else { Overwrite::Refuse };
+    let cache: Vec<Input<'_>> = args.cache.as_deref().map(|p| Input::new("--cache", p)).into_iter().collect();
+    check_outputs(&cache, &[Output::dir("--out", &args.out)])?;
+    check_dir_output(&args.out, overwrite)?;
     let cell = parse_cell(&args.cell).map_err(|e| input(format!("--cell: {e}")))?;
     if !(args.labelled_fraction.is_finite() && (0.0..=1.0).contains(&args.labelled_fraction)) {
         return Err(input(format!("--labelled-fraction must be in [0, 1], got {}", args.labelled_fraction)));
@@ -100,7 +107,6 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     let data = load(&cfg, args.cache.as_deref())?;
 
     let labelled = data.labelled_train_indices(args.labelled_fraction);
-    let overwrite = if args.force { Overwrite::Replace } else { Overwrite::Refuse };
     write_dir_atomic(&args.out, overwrite, |dir| {
         for split in Split::ALL {
             for f in data.flights(split) {

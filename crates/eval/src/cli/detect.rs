@@ -22,11 +22,13 @@ use std::fmt::Write as _;
 use std::path::{Component, Path, PathBuf};
 
 use ekf_residue::{Confusion, Detector};
-use quadformer_model::QuadFormerDetector;
+use quadformer_model::{ModelError, QuadFormerDetector};
 
 use crate::cli::CliError;
-use crate::cli::train::{ModelManifest, Storage, check_same_channels, read_manifest, read_split};
-use crate::io::{IoError, read_residues, write_text_atomic};
+use crate::cli::train::{
+    ModelManifest, Storage, check_same_channels, read_manifest, read_split, sha256_hex, window_len,
+};
+use crate::io::{Input, IoError, Output, check_outputs, read_residues, write_text_atomic};
 use crate::runner::fit;
 
 /// Relative tolerance between the recorded and the re-fitted threshold before a warning: the
@@ -60,6 +62,10 @@ pub struct Args {
 /// [`CliError`] naming the file: a missing, malformed or corrupt model manifest or checkpoint,
 /// an input CSV with a bad line or column, or channels that differ from the training channels.
 pub fn run(args: &Args) -> Result<(), CliError> {
+    check_outputs(
+        &[Input::new("--model", &args.model), Input::new("--in", &args.input)],
+        &[Output::file("--out", &args.out)],
+    )?;
     let manifest = read_manifest(&args.model)?;
     let input = read_residues(&args.input)?;
     check_same_channels(&args.input, &manifest.channels, input.series().channels())?;
@@ -70,6 +76,28 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         path: args.input.clone(),
         msg: format!("{} cannot score it: {e}", manifest.method.name()),
     })?;
+    if let Some(len) = window_len(manifest.method, &manifest.configs)
+        && input.series().len() < len
+    {
+        eprintln!(
+            "warning: {}: {} residue steps, fewer than {}'s window of {len}; its scores do not come from a \
+             full window and are not comparable with those of longer series",
+            args.input.display(),
+            input.series().len(),
+            manifest.method.name()
+        );
+    }
+    if let Some((k, s)) = scores.iter().enumerate().find(|(_, s)| !s.is_finite()) {
+        let t = input.series().t().get(k).copied().unwrap_or(f64::NAN);
+        return Err(CliError::Input {
+            path: args.input.clone(),
+            msg: format!(
+                "residue step {k} (t = {t} s): {} scores it {s}, not a finite number; are its residues far out of \
+                 range?",
+                manifest.method.name()
+            ),
+        });
+    }
     let threshold = if args.streaming { detector.streaming_threshold() } else { detector.threshold() };
     let alarms: Vec<bool> = scores.iter().map(|&s| s > threshold).collect();
     let labels = input.labels();
@@ -85,16 +113,21 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     );
     if let Some(labels) = labels {
         let c = Confusion::count(&alarms, labels);
+        // A ratio with a zero denominator is undefined, not 0: say so.
+        let ratio = |v: f64, defined: bool| if defined { format!("{v:.4}") } else { "undefined".to_owned() };
         eprintln!(
-            "precision {:.4}  recall {:.4}  F1 {:.4}  (tp {} fp {} fn {} tn {})",
-            c.precision(),
-            c.recall(),
-            c.f1(),
+            "precision {}  recall {}  F1 {}  (tp {} fp {} fn {} tn {})",
+            ratio(c.precision(), c.tp + c.fp > 0),
+            ratio(c.recall(), c.tp + c.fn_ > 0),
+            ratio(c.f1(), c.tp + c.fp + c.fn_ > 0),
             c.tp,
             c.fp,
             c.fn_,
             c.tn
         );
+        if c.tp + c.fn_ == 0 {
+            eprintln!("note: {} has no attacked step, so recall and F1 are undefined", args.input.display());
+        }
     }
     Ok(())
 }
@@ -106,11 +139,26 @@ pub fn run(args: &Args) -> Result<(), CliError> {
 /// inconsistent; [`CliError::Run`] if re-fitting fails.
 pub fn load_detector(model_dir: &Path, m: &ModelManifest) -> Result<Box<dyn Detector>, CliError> {
     match &m.storage {
-        Storage::Checkpoint { manifest } => {
+        Storage::Checkpoint { manifest, manifest_sha256 } => {
             let path = inside(model_dir, manifest)?;
-            let det = QuadFormerDetector::load(&path).map_err(|e| CliError::Input {
-                path: path.clone(),
-                msg: format!("cannot load the QUADFormer checkpoint: {e}"),
+            if let Some(want) = manifest_sha256 {
+                let bytes = std::fs::read(&path)
+                    .map_err(|source| CliError::Io(IoError::Fs { path: path.clone(), op: "read", source }))?;
+                if sha256_hex(&bytes) != *want {
+                    return Err(CliError::Input {
+                        path: path.clone(),
+                        msg: format!("corrupted: SHA-256 differs from the one in {}", crate::cli::train::MODEL_FILE),
+                    });
+                }
+            }
+            // Name each file once: checkpoint errors carry their own file.
+            let det = QuadFormerDetector::load(&path).map_err(|e| match e {
+                ModelError::Checkpoint { path, msg } => CliError::Input { path, msg },
+                ModelError::Io { path, source } => CliError::Io(IoError::Fs { path, op: "read", source }),
+                other => CliError::Input {
+                    path: path.clone(),
+                    msg: format!("cannot load the QUADFormer checkpoint: {other}"),
+                },
             })?;
             Ok(Box::new(det))
         }

@@ -6,6 +6,10 @@
 //! `reproduce-tables`, `figures`): write `cli/<name>.rs` with `pub struct Args` (clap
 //! derive, doc comments become `--help`) and `pub fn run(args: &Args) -> Result<(), CliError>`,
 //! add a variant to [`Command`] and a line to [`run`], and, if needed, a [`CliError`] variant.
+//!
+//! Every subcommand keeps docs/cli.md "Safety rules": it checks its outputs against its inputs
+//! with [`crate::io::check_outputs`] before any work, and writes only through
+//! `crate::io::atomic`.
 
 use std::path::PathBuf;
 

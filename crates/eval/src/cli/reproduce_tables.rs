@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 
 use crate::cli::CliError;
+use crate::io::IoError;
 use crate::reproduce::{MatrixConfig, Options, Stages, parse_cell, reproduce, table_cells};
 use crate::runner::Method;
 use crate::table::Cell;
@@ -85,6 +86,13 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         None => base,
     };
     let (cells, methods, seeds) = selection(args).map_err(input)?;
+    // Results are written into OUT (not replacing it): it must be a directory or absent.
+    if std::fs::metadata(&args.out).is_ok_and(|m| !m.is_dir()) {
+        return Err(CliError::Io(IoError::Unsafe {
+            path: args.out.clone(),
+            msg: "--out is not a directory; results are written into a directory".into(),
+        }));
+    }
     let opts = Options {
         config,
         quick: args.quick,

@@ -4,7 +4,8 @@
 //! The EKF (`ekf_residue::residues::generate_residues`) runs on the streams of the directory.
 //! Its noise model is, in order of precedence: the `--filter-config` file (keys left out keep
 //! the base values), else the simulator settings of the directory's `config.toml` when it was
-//! made by `quadformer simulate` (`FilterConfig::for_sim`, a consistent filter), else the
+//! made by `quadformer simulate` (`FilterConfig::for_sim`, a consistent filter; a
+//! `config.toml` that does not parse is an error, not a silent fall-back), else the
 //! documented defaults (`FilterConfig::new`). Labels come from `attack.csv` when present: a
 //! residue step is attacked when the GPS fix at its time is (`eval::io::labels_at`).
 
@@ -15,8 +16,8 @@ use uav_dynamics::TruthSample;
 
 use crate::cli::CliError;
 use crate::io::{
-    ATTITUDE_FILE, CONFIG_FILE, CovarianceLayout, FlightConfig, FlightDir, GPS_FILE, IoError, VO_FILE, labels_at,
-    read_flight_dir, write_residues, write_truth,
+    ATTITUDE_FILE, CONFIG_FILE, CovarianceLayout, FlightConfig, FlightDir, GPS_FILE, Input, IoError, Output, VO_FILE,
+    check_outputs, commit_all, labels_at, merge_over, read_flight_dir, stage_residues, stage_truth,
 };
 
 /// Which EKF model to run (paper sec:residue_generator).
@@ -93,6 +94,11 @@ pub struct Args {
 /// [`CliError`] naming the file, line and column of bad input, a stream the model needs that
 /// is missing, or the filter time at which the EKF failed.
 pub fn run(args: &Args) -> Result<(), CliError> {
+    let mut inputs = vec![Input::new("--in", &args.input)];
+    inputs.extend(args.filter_config.as_deref().map(|p| Input::new("--filter-config", p)));
+    let mut outputs = vec![Output::file("--out", &args.out)];
+    outputs.extend(args.estimates.as_deref().map(|p| Output::file("--estimates", p)));
+    check_outputs(&inputs, &outputs)?;
     let flight = read_flight_dir(&args.input)?;
     let model = ModelKind::from(args.model);
     check_streams(&args.input, &flight, model)?;
@@ -103,15 +109,17 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         (Some(attack), false) => Some(labels_at(out.series.t(), attack)),
         _ => None,
     };
-    write_residues(&args.out, &out.series, labels.as_deref(), args.covariance.into())?;
+    // Both outputs are staged and committed together: a failure writing either leaves neither.
+    let mut staged = vec![stage_residues(&args.out, &out.series, labels.as_deref(), args.covariance.into())?];
     if let Some(path) = &args.estimates {
         let rows: Vec<TruthSample> = out
             .estimates
             .iter()
             .map(|e| TruthSample { t: e.t, p: e.p, q: e.q, v: e.v, b_g: e.b_g, b_a: e.b_a })
             .collect();
-        write_truth(path, &rows)?;
+        staged.push(stage_truth(path, &rows)?);
     }
+    commit_all(staged)?;
     let n = out.series.len();
     #[allow(clippy::cast_precision_loss)] // step counts are far below 2^52
     let mean_nis = out.series.nis().iter().sum::<f64>() / n.max(1) as f64;
@@ -150,13 +158,19 @@ fn filter_config(args: &Args, flight: &FlightDir, model: ModelKind) -> Result<Fi
     let base = match &flight.config_toml {
         Some(text) => {
             let path = args.input.join(CONFIG_FILE);
-            match FlightConfig::from_toml(&path, text) {
-                Ok(cfg) => FilterConfig::for_sim(model, &cfg.sim),
-                Err(e) => {
-                    eprintln!("warning: {e}; using the default filter settings");
-                    FilterConfig::new(model)
-                }
-            }
+            // A config that does not parse would silently change the noise model: refuse it.
+            let cfg = FlightConfig::from_toml(&path, text).map_err(|e| CliError::Input {
+                path: path.clone(),
+                msg: format!(
+                    "{}\n(the filter's noise model is taken from this file; fix it, or remove it to use the \
+                     documented default filter settings)",
+                    match e {
+                        IoError::Toml { msg, .. } => msg,
+                        other => other.to_string(),
+                    }
+                ),
+            })?;
+            FilterConfig::for_sim(model, &cfg.sim)
         }
         None => FilterConfig::new(model),
     };
@@ -175,17 +189,4 @@ fn filter_config(args: &Args, flight: &FlightDir, model: ModelKind) -> Result<Fi
     cfg.model = model;
     cfg.check().map_err(|e| CliError::Config { path: path.clone(), msg: e.to_string() })?;
     Ok(cfg)
-}
-
-/// Overwrites `base` with the keys of `user`, recursing into tables present in both; keys of
-/// `user` unknown to `base` are kept, so that deserialisation rejects them by name.
-fn merge_over(base: &mut toml::Table, user: toml::Table) {
-    for (key, uv) in user {
-        match (base.get_mut(&key), uv) {
-            (Some(toml::Value::Table(bt)), toml::Value::Table(ut)) => merge_over(bt, ut),
-            (_, uv) => {
-                base.insert(key, uv);
-            }
-        }
-    }
 }

@@ -11,7 +11,10 @@ use attack_inject::{AttackPlan, inject};
 use uav_dynamics::Flight;
 
 use crate::cli::CliError;
-use crate::io::{AttackRecord, CONFIG_FILE, FlightConfig, FlightDir, Overwrite, SeedStream, write_flight_dir};
+use crate::io::{
+    AttackRecord, CONFIG_FILE, FlightConfig, FlightDir, Input, Output, Overwrite, SeedStream, check_dir_output,
+    check_outputs, write_flight_dir,
+};
 
 /// Arguments of `quadformer simulate`.
 #[derive(Debug, clap::Args)]
@@ -23,8 +26,9 @@ pub struct Args {
     /// Output flight directory (created atomically; must not exist or be empty unless --force).
     #[arg(long, value_name = "DIR", required_unless_present = "print_default_config")]
     pub out: Option<PathBuf>,
-    /// Override the config's master seed.
-    #[arg(long)]
+    /// Override the config's master seed (at most 2^63 − 1: the seed is written to config.toml,
+    /// whose integers are signed 64-bit).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(..=crate::io::MAX_SEED))]
     pub seed: Option<u64>,
     /// Replace DIR if it exists (the old directory is removed only after the new one is complete).
     #[arg(long)]
@@ -49,6 +53,9 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     let (Some(config), Some(out)) = (&args.config, &args.out) else {
         return Err(CliError::Input { path: PathBuf::from("."), msg: "--config and --out are required".into() });
     };
+    let overwrite = if args.force { Overwrite::Replace } else { Overwrite::Refuse };
+    check_outputs(&[Input::new("--config", config)], &[Output::dir("--out", out)])?;
+    check_dir_output(out, overwrite)?;
     let mut cfg = FlightConfig::load(config)?;
     if let Some(seed) = args.seed {
         cfg.seed = seed;
@@ -57,7 +64,6 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     if args.no_truth {
         flight.truth = None;
     }
-    let overwrite = if args.force { Overwrite::Replace } else { Overwrite::Refuse };
     write_flight_dir(out, &flight, overwrite)?;
     let n_attacked = flight.attack.as_ref().map_or(0, |a| a.iter().filter(|r| r.label).count());
     eprintln!(

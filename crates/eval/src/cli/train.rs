@@ -9,7 +9,9 @@
 //!
 //! Model directory (decision 081), written atomically:
 //! - `model.json` ([`ModelManifest`]): format name and version, method, channels, fitted
-//!   threshold, seed, the method configurations used, and how the fitted detector is stored;
+//!   threshold, seed, the method configurations used, and how the fitted detector is stored
+//!   (plain file names inside the directory; for QUADFormer with the SHA-256 of its checkpoint
+//!   manifest); [`read_manifest`] validates every field;
 //! - QUADFormer: `quadformer.json` + `quadformer.safetensors` (the checkpoint of
 //!   `quadformer_model::checkpoint`: manifest with normaliser, scoring mode and threshold,
 //!   weights with size and SHA-256);
@@ -20,11 +22,13 @@
 use std::path::{Path, PathBuf};
 
 use ekf_residue::{Detector, Fit, LabelledResidues, LabelledSeries};
+use quadformer_model::checkpoint::weights_file_name;
 use serde::{Deserialize, Serialize};
 
 use crate::cli::CliError;
 use crate::io::{
-    CovarianceLayout, IoError, Overwrite, read_residues, write_dir_atomic, write_residues, write_text_atomic,
+    CovarianceLayout, Input, IoError, Output, Overwrite, check_dir_output, check_outputs, read_residues,
+    write_bytes_atomic, write_dir_atomic, write_residues, write_text_atomic,
 };
 use crate::runner::{Method, MethodConfigs, fit};
 
@@ -38,6 +42,59 @@ pub const MODEL_VERSION: u32 = 1;
 pub const CHECKPOINT_FILE: &str = "quadformer.json";
 /// Directory of the recorded training data of re-fitted methods.
 pub const DATA_DIR: &str = "data";
+/// Fewest training residue steps `train` fits on (more for windowed methods: one window).
+pub const MIN_TRAIN_STEPS: usize = 10;
+
+/// Window length of a windowed method (QUADFormer, CNN, LSTM, SVM), `None` for the others.
+#[must_use]
+pub fn window_len(method: Method, cfgs: &MethodConfigs) -> Option<usize> {
+    match method {
+        Method::QuadFormer => Some(cfgs.quadformer.window.len),
+        Method::Cnn => Some(cfgs.cnn.0.window.len),
+        Method::Lstm => Some(cfgs.lstm.0.window.len),
+        Method::Svm => Some(cfgs.svm.window),
+        _ => None,
+    }
+}
+
+/// Checks that the splits can fit `method`: at least [`MIN_TRAIN_STEPS`] training steps and
+/// one window of them; validation with both attacked and clean steps, between which the
+/// threshold is chosen.
+fn check_enough_data(
+    args: &Args,
+    cfgs: &MethodConfigs,
+    train: &LabelledResidues,
+    valid: &LabelledResidues,
+) -> Result<(), CliError> {
+    let window = window_len(args.method, cfgs);
+    let need = window.unwrap_or(0).max(MIN_TRAIN_STEPS);
+    if train.n_steps() < need {
+        let why = match window {
+            Some(len) if len >= MIN_TRAIN_STEPS => format!(" (one window of {len})"),
+            _ => String::new(),
+        };
+        return Err(CliError::Input {
+            path: args.train.clone(),
+            msg: format!("{} residue steps; {} needs at least {need}{why}", train.n_steps(), args.method.name()),
+        });
+    }
+    let (mut attacked, mut clean) = (0usize, 0usize);
+    for (_, labels) in valid.labelled() {
+        let a = labels.iter().filter(|&&l| l).count();
+        attacked += a;
+        clean += labels.len() - a;
+    }
+    if attacked == 0 || clean == 0 {
+        return Err(CliError::Input {
+            path: args.valid.clone(),
+            msg: format!(
+                "{attacked} attacked and {clean} clean steps; the alarm threshold is chosen between them, so \
+                 validation needs both"
+            ),
+        });
+    }
+    Ok(())
+}
 
 /// How the fitted detector is kept in a model directory.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -45,14 +102,18 @@ pub const DATA_DIR: &str = "data";
 pub enum Storage {
     /// A QUADFormer checkpoint (`quadformer_model::checkpoint`).
     Checkpoint {
-        /// Checkpoint manifest, relative to the model directory.
+        /// Checkpoint manifest: a plain file name in the model directory.
         manifest: String,
+        /// Lower-case hex SHA-256 of the checkpoint manifest (which holds the SHA-256 of the
+        /// weights), checked before it is read; absent in directories written before it existed.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        manifest_sha256: Option<String>,
     },
     /// A copy of the training data; `detect` re-fits the method from it.
     Refit {
-        /// Training residue files, relative to the model directory.
+        /// Training residue files: `data/train/<plain file name>`.
         train: Vec<String>,
-        /// Validation residue files, relative to the model directory.
+        /// Validation residue files: `data/valid/<plain file name>`.
         valid: Vec<String>,
     },
 }
@@ -213,6 +274,16 @@ pub fn method_configs(path: Option<&Path>, quick: bool, seed: u64) -> Result<Met
     crate::io::merge_over(&mut merged, user);
     let cfgs: MethodConfigs =
         merged.try_into().map_err(|e: toml::de::Error| config_err(e.message().trim().to_owned()))?;
+    // Sizes are checked against their budgets here, before any data is read.
+    let checks: [(&str, Result<(), String>); 4] = [
+        ("quadformer", cfgs.quadformer.check().map_err(|e| e.to_string())),
+        ("cnn", cfgs.cnn.0.check().map_err(|e| e.to_string())),
+        ("lstm", cfgs.lstm.0.check().map_err(|e| e.to_string())),
+        ("svm", cfgs.svm.check().map_err(|e| e.to_string())),
+    ];
+    for (table, r) in checks {
+        r.map_err(|e| config_err(format!("[{table}]: {e}")))?;
+    }
     Ok(cfgs.seeded(seed))
 }
 
@@ -222,12 +293,18 @@ pub fn method_configs(path: Option<&Path>, quick: bool, seed: u64) -> Result<Met
 /// [`CliError`] naming the file of bad input (line and column for CSV errors, field for
 /// config errors), [`CliError::Run`] when fitting fails.
 pub fn run(args: &Args) -> Result<(), CliError> {
+    let overwrite = if args.force { Overwrite::Replace } else { Overwrite::Refuse };
+    let mut inputs = vec![Input::new("--train", &args.train), Input::new("--valid", &args.valid)];
+    inputs.extend(args.config.as_deref().map(|p| Input::new("--config", p)));
+    check_outputs(&inputs, &[Output::dir("--out", &args.out)])?;
+    check_dir_output(&args.out, overwrite)?;
     let cfgs = method_configs(args.config.as_deref(), args.quick, args.seed)?;
     let train_files = csv_files(&args.train)?;
     let valid_files = csv_files(&args.valid)?;
     let train = read_split(&train_files, None, false)?;
     let channels = train.channels().to_vec();
     let valid = read_split(&valid_files, Some(&channels), true)?;
+    check_enough_data(args, &cfgs, &train, &valid)?;
     let method = args.method;
     let fit_err = |msg: String| {
         CliError::Run(format!("--train {}, --valid {}: {msg}", args.train.display(), args.valid.display()))
@@ -247,12 +324,14 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         }
     };
     let trained_on: Vec<String> = train_files.iter().chain(&valid_files).map(|p| p.display().to_string()).collect();
-    let overwrite = if args.force { Overwrite::Replace } else { Overwrite::Refuse };
 
     let threshold = if method == Method::QuadFormer {
         let det =
             cfgs.quadformer.fit(&train, &valid).map_err(|e| fit_err(format!("{}: fit failed: {e}", method.name())))?;
         let threshold = finite(det.threshold())?;
+        let files = det
+            .encode(&weights_file_name(CHECKPOINT_FILE))
+            .map_err(|e| CliError::Run(format!("{}: {e}", args.out.display())))?;
         let manifest = manifest(
             method,
             &channels,
@@ -260,11 +339,14 @@ pub fn run(args: &Args) -> Result<(), CliError> {
             args.seed,
             &cfgs,
             trained_on,
-            Storage::Checkpoint { manifest: CHECKPOINT_FILE.into() },
+            Storage::Checkpoint {
+                manifest: CHECKPOINT_FILE.into(),
+                manifest_sha256: Some(sha256_hex(files.manifest.as_bytes())),
+            },
         );
         write_dir_atomic(&args.out, overwrite, |dir| {
-            let ck = dir.join(CHECKPOINT_FILE);
-            det.save(&ck).map_err(|e| IoError::Inconsistent { path: ck.clone(), msg: e.to_string() })?;
+            write_bytes_atomic(&dir.join(weights_file_name(CHECKPOINT_FILE)), &files.weights)?;
+            write_text_atomic(&dir.join(CHECKPOINT_FILE), &files.manifest)?;
             write_manifest(dir, &manifest)
         })?;
         threshold
@@ -337,27 +419,118 @@ fn write_manifest(dir: &Path, m: &ModelManifest) -> crate::io::Result<()> {
     write_text_atomic(&path, &json)
 }
 
+/// Most files a model manifest may list (training plus validation flights).
+pub const MAX_MANIFEST_FILES: usize = 100_000;
+
+/// Lower-case hex SHA-256 of `bytes`.
+#[must_use]
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest as _;
+    sha2::Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Whether `name` is a plain file name: one normal component, no separator.
+#[must_use]
+pub fn is_plain_name(name: &str) -> bool {
+    !name.contains(['/', '\\']) && Path::new(name).file_name().is_some_and(|n| n == name)
+}
+
+/// A JSON error's message without the ` at line L column C` serde_json appends (the caller
+/// reports the position once, itself).
+fn json_message(e: &serde_json::Error) -> String {
+    let msg = e.to_string();
+    match msg.rsplit_once(" at line ") {
+        Some((head, _)) if e.line() > 0 => head.to_owned(),
+        _ => msg,
+    }
+}
+
+/// Checks every field of a parsed manifest (see [`read_manifest`]); the message names the field.
+fn check_fields(m: &ModelManifest) -> Result<(), String> {
+    if m.channels.is_empty() {
+        return Err("channels: empty".into());
+    }
+    if m.channels.len() > quadformer_model::window::MAX_CHANNELS {
+        return Err(format!(
+            "channels: {} exceed the budget of {}",
+            m.channels.len(),
+            quadformer_model::window::MAX_CHANNELS
+        ));
+    }
+    for (i, c) in m.channels.iter().enumerate() {
+        if c.is_empty() || c.chars().any(|ch| ch.is_control() || ch == ',') {
+            return Err(format!("channels[{i}]: {c:?} is not a channel name (empty, a control character or `,`)"));
+        }
+        if m.channels[..i].contains(c) {
+            return Err(format!("channels[{i}]: `{c}` is listed twice"));
+        }
+    }
+    if !m.threshold.is_finite() {
+        return Err(format!("threshold: must be finite, got {}", m.threshold));
+    }
+    if m.trained_on.len() > MAX_MANIFEST_FILES {
+        return Err(format!("trained_on: {} entries exceed the budget of {MAX_MANIFEST_FILES}", m.trained_on.len()));
+    }
+    match &m.storage {
+        Storage::Checkpoint { manifest, manifest_sha256 } => {
+            if !is_plain_name(manifest) {
+                return Err(format!("storage.manifest: `{manifest}` must be a plain file name in the model directory"));
+            }
+            if let Some(h) = manifest_sha256
+                && !(h.len() == 64 && h.chars().all(|c| c.is_ascii_digit() || ('a'..='f').contains(&c)))
+            {
+                return Err(format!("storage.manifest_sha256: `{h}` is not a lower-case hex SHA-256"));
+            }
+        }
+        Storage::Refit { train, valid } => {
+            for (split, names) in [("train", train), ("valid", valid)] {
+                if names.is_empty() {
+                    return Err(format!("storage.{split}: no files"));
+                }
+                if names.len() > MAX_MANIFEST_FILES {
+                    return Err(format!(
+                        "storage.{split}: {} files exceed the budget of {MAX_MANIFEST_FILES}",
+                        names.len()
+                    ));
+                }
+                let prefix = format!("{DATA_DIR}/{split}/");
+                for (i, n) in names.iter().enumerate() {
+                    let plain = n.strip_prefix(&prefix).is_some_and(is_plain_name);
+                    if !plain {
+                        return Err(format!("storage.{split}[{i}]: `{n}` must be `{prefix}<plain file name>`"));
+                    }
+                    if names[..i].contains(n) {
+                        return Err(format!("storage.{split}[{i}]: `{n}` is listed twice"));
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Reads and checks the `model.json` of a model directory.
 ///
 /// # Errors
 /// [`CliError::Io`] if it cannot be read; [`CliError::Input`] naming the file when it is
-/// malformed (line and column), of another format or version, or inconsistent.
+/// malformed (line and column), of another format or version, or inconsistent, or a field is
+/// invalid (named): no channels or a duplicate, a threshold that is not finite, a file name
+/// that is not a plain name inside the model directory, a list over its budget.
 pub fn read_manifest(model_dir: &Path) -> Result<ModelManifest, CliError> {
     let path = model_dir.join(MODEL_FILE);
     let bad = |msg: String| CliError::Input { path: path.clone(), msg };
     let text =
         std::fs::read_to_string(&path).map_err(|source| IoError::Fs { path: path.clone(), op: "read", source })?;
-    let m: ModelManifest = serde_json::from_str(&text)
-        .map_err(|e| bad(format!("malformed model manifest at line {}, column {}: {e}", e.line(), e.column())))?;
+    let m: ModelManifest = serde_json::from_str(&text).map_err(|e| {
+        bad(format!("malformed model manifest at line {}, column {}: {}", e.line(), e.column(), json_message(&e)))
+    })?;
     if m.format != MODEL_FORMAT {
         return Err(bad(format!("format is `{}`, expected `{MODEL_FORMAT}`", m.format)));
     }
     if m.version != MODEL_VERSION {
         return Err(bad(format!("version {} is not supported (this build reads {MODEL_VERSION})", m.version)));
     }
-    if m.channels.is_empty() {
-        return Err(bad("no channels".into()));
-    }
+    check_fields(&m).map_err(bad)?;
     let storage_ok =
         matches!((&m.storage, m.method), (Storage::Checkpoint { .. }, Method::QuadFormer) | (Storage::Refit { .. }, _));
     if !storage_ok {

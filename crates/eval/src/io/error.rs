@@ -20,6 +20,15 @@ pub enum IoError {
         #[source]
         source: std::io::Error,
     },
+    /// An output would replace or reach something it must not (a device, FIFO or symbolic
+    /// link; an input; a model's own file), or cannot be created where asked.
+    #[error("{}: {msg}", path.display())]
+    Unsafe {
+        /// The output path (or the ancestor) concerned.
+        path: PathBuf,
+        /// What is there, or which input it would overwrite.
+        msg: String,
+    },
     /// A required file is absent.
     #[error("{}: missing file ({why})", path.display())]
     MissingFile {

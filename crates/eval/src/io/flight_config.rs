@@ -133,6 +133,10 @@ pub struct FlightConfig {
     pub attacks: Vec<AttackConfig>,
 }
 
+/// Largest seed a flight config can hold (TOML integers are signed 64-bit).
+#[allow(clippy::cast_sign_loss)] // i64::MAX is positive
+pub const MAX_SEED: u64 = i64::MAX as u64;
+
 /// Purposes of derived seeds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SeedStream {
@@ -190,12 +194,26 @@ impl FlightConfig {
         Self::from_toml(path, &text)
     }
 
-    /// The config as TOML text (every field explicit).
+    /// The config as TOML text (every field explicit), checked to read back as `self`.
     ///
     /// # Errors
-    /// [`IoError::Toml`] if a value cannot be encoded (e.g. a non-finite float).
+    /// [`IoError::Toml`] if a value cannot be encoded (e.g. a non-finite float, or a `seed`
+    /// above [`MAX_SEED`]: TOML integers are signed 64-bit) or the text would not read back
+    /// as the same config.
     pub fn to_toml(&self, path: &Path) -> Result<String> {
-        toml::to_string(self).map_err(|e| IoError::Toml { path: path.to_owned(), msg: e.to_string() })
+        let toml_err = |msg: String| IoError::Toml { path: path.to_owned(), msg };
+        if self.seed > MAX_SEED {
+            return Err(toml_err(format!(
+                "seed {} cannot be written: TOML integers are signed 64-bit, so a seed is at most {MAX_SEED}",
+                self.seed
+            )));
+        }
+        let text = toml::to_string(self).map_err(|e| toml_err(e.to_string()))?;
+        match Self::from_toml(path, &text) {
+            Ok(back) if back == *self => Ok(text),
+            Ok(_) => Err(toml_err("the config does not read back as written".into())),
+            Err(e) => Err(toml_err(format!("the config would not read back: {e}"))),
+        }
     }
 
     /// Writes the config to `path` atomically.
@@ -289,6 +307,15 @@ mod tests {
         assert!(e.contains("line 1, column 8"), "{e}");
         let e = parse("seed = \n").unwrap_err().to_string();
         assert!(e.contains("line 1"), "{e}");
+    }
+
+    #[test]
+    fn a_config_that_cannot_read_back_is_not_written() {
+        let cfg = FlightConfig { seed: u64::MAX, ..FlightConfig::default() };
+        let e = cfg.to_toml(Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.contains("seed 18446744073709551615 cannot be written"), "{e}");
+        let cfg = FlightConfig { seed: MAX_SEED, ..FlightConfig::default() };
+        assert_eq!(parse(&cfg.to_toml(Path::new("c.toml")).unwrap()).unwrap(), cfg);
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! File formats of QUADFormer-rs (docs/data-format.md): CSV sensor streams, ground truth,
 //! attack offsets/labels and residue series (paper alg:alg1 outputs), flight directories, and
-//! atomic output.
+//! atomic output with the checks of docs/cli.md "Safety rules" (`atomic`, `output_check`).
 //!
 //! Every CSV file has a header; time stamps are seconds and increase strictly; frames are ENU
 //! (world) and FLU (body); angles are radians (ZYX Euler). Readers find columns by name and
@@ -28,22 +28,29 @@ mod attack;
 mod error;
 mod flight_config;
 mod flight_dir;
+mod output_check;
 mod residues;
 mod streams;
 mod table;
 mod toml_merge;
 
-pub use atomic::{Overwrite, write_dir_atomic, write_file_atomic, write_text_atomic};
+pub use atomic::{
+    OutputKind, Overwrite, Staged, TEMP_PREFIX, check_dir_output, check_replaceable, commit_all, remove_stale_temps,
+    stage_file, write_bytes_atomic, write_dir_atomic, write_file_atomic, write_into_dir_atomic, write_path_atomic,
+    write_text_atomic,
+};
 pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, labels_at, read_attack, write_attack};
 pub use error::{IoError, Result};
-pub use flight_config::{FlightConfig, SeedStream, TrajectoryConfig, TrajectoryKind};
+pub use flight_config::{FlightConfig, MAX_SEED, SeedStream, TrajectoryConfig, TrajectoryKind};
 pub use flight_dir::{
     ATTACK_FILE, ATTITUDE_FILE, CONFIG_FILE, FlightDir, GPS_FILE, IMU_FILE, TRUTH_FILE, VO_FILE, read_flight_dir,
     write_flight_dir,
 };
-pub use residues::{CovarianceLayout, r_column, read_residues, s_column, write_residues};
+pub use output_check::{Input, Output, check_outputs};
+pub use residues::{CovarianceLayout, r_column, read_residues, s_column, stage_residues, write_residues};
 pub use streams::{
-    ATTITUDE_COLUMNS, GPS_COLUMNS, GPS_GEODETIC_COLUMNS, IMU_COLUMNS, TRUTH_COLUMNS, VO_COLUMNS, read_attitude,
-    read_gps, read_imu, read_truth, read_vo, write_attitude, write_gps, write_imu, write_truth, write_vo,
+    ATTITUDE_COLUMNS, GPS_COLUMNS, GPS_GEODETIC_COLUMNS, IMU_COLUMNS, MAX_ACCEL_M_S2, MAX_ANGLE_RAD, MAX_GYRO_RAD_S,
+    MAX_POSITION_M, MAX_SPEED_M_S, TRUTH_COLUMNS, VO_COLUMNS, read_attitude, read_gps, read_imu, read_truth, read_vo,
+    stage_truth, write_attitude, write_gps, write_imu, write_truth, write_vo,
 };
 pub use toml_merge::merge_over;

@@ -13,7 +13,7 @@ use std::path::Path;
 
 use ekf_residue::{LabelledSeries, ResidueSeries};
 
-use crate::io::atomic::write_file_atomic;
+use crate::io::atomic::{Staged, stage_file};
 use crate::io::error::{IoError, Result};
 use crate::io::table::{CsvIn, CsvOut};
 
@@ -54,6 +54,20 @@ pub fn write_residues(
     labels: Option<&[bool]>,
     layout: CovarianceLayout,
 ) -> Result<()> {
+    stage_residues(path, series, labels, layout)?.commit()
+}
+
+/// Writes the residue file of [`write_residues`] into its temporary, to be committed with the
+/// other outputs of a command (`crate::io::commit_all`).
+///
+/// # Errors
+/// As [`write_residues`].
+pub fn stage_residues(
+    path: &Path,
+    series: &ResidueSeries,
+    labels: Option<&[bool]>,
+    layout: CovarianceLayout,
+) -> Result<Staged> {
     if let Some(l) = labels
         && l.len() != series.len()
     {
@@ -75,7 +89,7 @@ pub fn write_residues(
     if labels.is_some() {
         header.push("label".into());
     }
-    write_file_atomic(path, |file| {
+    stage_file(path, |file| {
         let mut out = CsvOut::new(path, file, header)?;
         for (k, step) in series.steps().enumerate() {
             out.f64(step.t)?;

@@ -2,7 +2,9 @@
 //!
 //! Frames and units follow DESIGN.md "Conventions": world ENU (z up), body FLU, metres,
 //! radians (ZYX Euler `[roll φ, pitch θ, yaw ψ]`), seconds from the start of the flight.
-//! Every file has a header; time stamps must increase strictly.
+//! Every file has a header; time stamps must increase strictly; values must be finite and
+//! within plausibility bounds ([`MAX_GYRO_RAD_S`], [`MAX_ACCEL_M_S2`], [`MAX_ANGLE_RAD`],
+//! [`MAX_POSITION_M`], [`MAX_SPEED_M_S`]) far beyond any quadrotor's sensors.
 //!
 //! | file | columns |
 //! |---|---|
@@ -17,9 +19,22 @@ use std::path::Path;
 use ekf_residue::geodetic::{Geodetic, LocalEnu};
 use uav_dynamics::{AttitudeSample, GpsSample, ImuSample, TruthSample, VoSample};
 
-use crate::io::atomic::write_file_atomic;
+use crate::io::atomic::{Staged, stage_file};
 use crate::io::error::{IoError, Result};
 use crate::io::table::{CsvIn, CsvOut, Row};
+
+/// Plausibility bound of angular rates, rad/s (about 5,700 °/s; MEMS gyros of flight
+/// controllers saturate at ±2,000 °/s ≈ 35 rad/s). Readers refuse larger values.
+pub const MAX_GYRO_RAD_S: f64 = 100.0;
+/// Plausibility bound of specific force, m/s² (about 100 g; MEMS accelerometers of flight
+/// controllers saturate at ±16 g).
+pub const MAX_ACCEL_M_S2: f64 = 1_000.0;
+/// Plausibility bound of angles, rad (about 160 turns, so an unwrapped yaw log passes).
+pub const MAX_ANGLE_RAD: f64 = 1_000.0;
+/// Plausibility bound of positions, m (beyond the Earth's radius).
+pub const MAX_POSITION_M: f64 = 1e7;
+/// Plausibility bound of velocities, m/s.
+pub const MAX_SPEED_M_S: f64 = 1e4;
 
 /// Columns of `imu.csv`.
 pub const IMU_COLUMNS: [&str; 7] = ["t", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"];
@@ -49,7 +64,11 @@ pub(crate) trait CsvRecord: Sized {
 impl CsvRecord for ImuSample {
     const COLUMNS: &'static [&'static str] = &IMU_COLUMNS;
     fn parse(input: &CsvIn, row: &Row, cols: &[usize], t: f64) -> Result<Self> {
-        Ok(Self { t, gyro: input.vec3(row, &cols[1..4])?, accel: input.vec3(row, &cols[4..7])? })
+        Ok(Self {
+            t,
+            gyro: input.bounded_vec3(row, &cols[1..4], MAX_GYRO_RAD_S, "rad/s")?,
+            accel: input.bounded_vec3(row, &cols[4..7], MAX_ACCEL_M_S2, "m/s²")?,
+        })
     }
     fn emit(&self, out: &mut CsvOut<'_>) -> Result<()> {
         out.f64(self.t)?;
@@ -61,7 +80,7 @@ impl CsvRecord for ImuSample {
 impl CsvRecord for GpsSample {
     const COLUMNS: &'static [&'static str] = &GPS_COLUMNS;
     fn parse(input: &CsvIn, row: &Row, cols: &[usize], t: f64) -> Result<Self> {
-        Ok(Self { t, p: input.vec3(row, &cols[1..4])? })
+        Ok(Self { t, p: input.bounded_vec3(row, &cols[1..4], MAX_POSITION_M, "m")? })
     }
     fn emit(&self, out: &mut CsvOut<'_>) -> Result<()> {
         out.f64(self.t)?;
@@ -72,7 +91,7 @@ impl CsvRecord for GpsSample {
 impl CsvRecord for AttitudeSample {
     const COLUMNS: &'static [&'static str] = &ATTITUDE_COLUMNS;
     fn parse(input: &CsvIn, row: &Row, cols: &[usize], t: f64) -> Result<Self> {
-        Ok(Self { t, q: input.vec3(row, &cols[1..4])? })
+        Ok(Self { t, q: input.bounded_vec3(row, &cols[1..4], MAX_ANGLE_RAD, "rad")? })
     }
     fn emit(&self, out: &mut CsvOut<'_>) -> Result<()> {
         out.f64(self.t)?;
@@ -86,8 +105,8 @@ impl CsvRecord for VoSample {
         Ok(Self {
             t,
             keyframe: input.u32(row, cols[1])?,
-            p_rel: input.vec3(row, &cols[2..5])?,
-            q_rel: input.vec3(row, &cols[5..8])?,
+            p_rel: input.bounded_vec3(row, &cols[2..5], MAX_POSITION_M, "m")?,
+            q_rel: input.bounded_vec3(row, &cols[5..8], MAX_ANGLE_RAD, "rad")?,
         })
     }
     fn emit(&self, out: &mut CsvOut<'_>) -> Result<()> {
@@ -103,11 +122,11 @@ impl CsvRecord for TruthSample {
     fn parse(input: &CsvIn, row: &Row, cols: &[usize], t: f64) -> Result<Self> {
         Ok(Self {
             t,
-            p: input.vec3(row, &cols[1..4])?,
-            q: input.vec3(row, &cols[4..7])?,
-            v: input.vec3(row, &cols[7..10])?,
-            b_g: input.vec3(row, &cols[10..13])?,
-            b_a: input.vec3(row, &cols[13..16])?,
+            p: input.bounded_vec3(row, &cols[1..4], MAX_POSITION_M, "m")?,
+            q: input.bounded_vec3(row, &cols[4..7], MAX_ANGLE_RAD, "rad")?,
+            v: input.bounded_vec3(row, &cols[7..10], MAX_SPEED_M_S, "m/s")?,
+            b_g: input.bounded_vec3(row, &cols[10..13], MAX_GYRO_RAD_S, "rad/s")?,
+            b_a: input.bounded_vec3(row, &cols[13..16], MAX_ACCEL_M_S2, "m/s²")?,
         })
     }
     fn emit(&self, out: &mut CsvOut<'_>) -> Result<()> {
@@ -162,7 +181,13 @@ pub(crate) fn read_records<R: CsvRecord>(path: &Path) -> Result<Vec<R>> {
 /// [`IoError::Unwritable`] for a non-finite value (nothing is written); [`IoError::Fs`] on
 /// file-system failure.
 pub(crate) fn write_records<R: CsvRecord>(path: &Path, records: &[R]) -> Result<()> {
-    write_file_atomic(path, |file| {
+    stage_records(path, records)?.commit()
+}
+
+/// Writes records `R` as [`write_records`] does into the file's temporary, to be committed
+/// with the other outputs of a command.
+pub(crate) fn stage_records<R: CsvRecord>(path: &Path, records: &[R]) -> Result<Staged> {
+    stage_file(path, |file| {
         let mut out = CsvOut::new(path, file, R::COLUMNS.iter().map(|s| (*s).to_owned()).collect())?;
         for r in records {
             r.emit(&mut out)?;
@@ -204,6 +229,15 @@ stream_io!(read_attitude, write_attitude, AttitudeSample, "attitude.csv");
 stream_io!(read_vo, write_vo, VoSample, "vo.csv");
 stream_io!(read_truth, write_truth, TruthSample, "truth.csv");
 
+/// Writes `truth.csv` as [`write_truth`] does into its temporary, to be committed with the
+/// other outputs of a command (`crate::io::commit_all`).
+///
+/// # Errors
+/// As [`write_truth`].
+pub fn stage_truth(path: &Path, samples: &[TruthSample]) -> Result<Staged> {
+    stage_records(path, samples)
+}
+
 /// Geodetic columns accepted in `gps.csv` instead of `p_x, p_y, p_z`.
 pub const GPS_GEODETIC_COLUMNS: [&str; 4] = ["t", "lat_deg", "lon_deg", "h_m"];
 
@@ -234,6 +268,13 @@ pub fn read_gps(path: &Path) -> Result<Vec<GpsSample>> {
             lon_deg: input.f64(&row, cols[2])?,
             h_m: input.f64(&row, cols[3])?,
         };
+        if g.h_m.abs() > MAX_POSITION_M {
+            return Err(input.field_error(
+                &row,
+                cols[3],
+                format!("{:?} m is outside the plausible range ±{MAX_POSITION_M} m", g.h_m),
+            ));
+        }
         if g.lat_deg.abs() > 90.0 {
             return Err(input.field_error(
                 &row,

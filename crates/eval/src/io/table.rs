@@ -162,6 +162,28 @@ impl CsvIn {
         Ok(v)
     }
 
+    /// Fields `cols` as a 3-vector whose entries lie in `[-max, max]` (`unit` for messages):
+    /// a plausibility bound that refuses corrupt or mis-scaled values.
+    pub(crate) fn bounded_vec3(
+        &self,
+        row: &Row,
+        cols: &[usize],
+        max: f64,
+        unit: &str,
+    ) -> Result<nalgebra::Vector3<f64>> {
+        let v = self.vec3(row, cols)?;
+        for (i, &c) in cols.iter().take(3).enumerate() {
+            if v[i].abs() > max {
+                return Err(self.field_error(
+                    row,
+                    c,
+                    format!("{:?} {unit} is outside the plausible range ±{max} {unit} (corrupt or mis-scaled?)", v[i]),
+                ));
+            }
+        }
+        Ok(v)
+    }
+
     /// Field `col` as a non-negative integer that fits in `u32`.
     pub(crate) fn u32(&self, row: &Row, col: usize) -> Result<u32> {
         let text = self.str(row, col);

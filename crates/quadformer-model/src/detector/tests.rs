@@ -102,12 +102,20 @@ fn same_seed_same_detector() {
     assert_eq!(a.chosen(), b.chosen());
 }
 
+/// Writes `det`'s checkpoint as `path` and its weights beside it.
+fn save(det: &QuadFormerDetector, path: &std::path::Path) {
+    let name = path.file_name().unwrap().to_str().unwrap();
+    let files = det.encode(&crate::checkpoint::weights_file_name(name)).unwrap();
+    std::fs::write(path.with_extension("safetensors"), files.weights).unwrap();
+    std::fs::write(path, files.manifest).unwrap();
+}
+
 #[test]
 fn checkpoint_round_trip_gives_identical_scores() {
     let det = fitted();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
-    det.save(&path).unwrap();
+    save(det, &path);
     let back = QuadFormerDetector::load(&path).unwrap();
     let s = flight(100, 21, 4.0, false);
     assert_eq!(det.score(s.series()).unwrap(), back.score(s.series()).unwrap());
@@ -120,7 +128,7 @@ fn corrupt_truncated_and_mismatched_checkpoints_are_clear_errors() {
     let det = fitted();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
-    det.save(&path).unwrap();
+    save(det, &path);
     let weights = path.with_extension("safetensors");
     let good_w = std::fs::read(&weights).unwrap();
     let good_j = std::fs::read_to_string(&path).unwrap();
@@ -154,6 +162,12 @@ fn corrupt_truncated_and_mismatched_checkpoints_are_clear_errors() {
     }
     std::fs::write(&path, good_j.replace("\"len\": 16", "\"len\": 1000000000")).unwrap();
     expect_err("window.len");
+    std::fs::write(&path, good_j.replace("\"d_model\": 16", "\"d_model\": 1000000000")).unwrap();
+    expect_err("net.d_model");
+    let mut json: serde_json::Value = serde_json::from_str(&good_j).unwrap();
+    json["chosen"]["valid_f1"] = serde_json::json!(2.0);
+    std::fs::write(&path, json.to_string()).unwrap();
+    expect_err("chosen.valid_f1 must be in [0, 1]");
     let negative_std = good_j.replacen("\"std\": [\n      ", "\"std\": [\n      -", 1);
     assert_ne!(negative_std, good_j, "the manifest layout changed");
     std::fs::write(&path, negative_std).unwrap();
@@ -190,7 +204,7 @@ fn online_matches_batch_on_one_window_and_checks_input() {
 fn online_matches_batch_in_every_mode() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
-    fitted().save(&path).unwrap();
+    save(fitted(), &path);
     let f = flight(L, 32, 4.0, false);
     for r in fitted().mode_results() {
         let mut det = QuadFormerDetector::load(&path).unwrap();
@@ -219,7 +233,7 @@ fn the_streaming_threshold_is_chosen_on_validation_streaming_scores_and_saved() 
     }
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
-    det.save(&path).unwrap();
+    save(det, &path);
     assert_eq!(QuadFormerDetector::load(&path).unwrap().streaming_threshold(), want);
     // A manifest written before streaming thresholds existed streams at the batch threshold.
     let text = std::fs::read_to_string(&path).unwrap();
@@ -248,4 +262,75 @@ fn detectors_and_configs_are_send_sync() {
     check::<QuadFormerDetector>();
     check::<QuadFormerConfig>();
     check::<crate::window::Windows>();
+}
+
+/// Every JSON pointer of `v`'s leaves and containers.
+fn json_pointers(v: &serde_json::Value, here: String, out: &mut Vec<String>) {
+    match v {
+        serde_json::Value::Object(m) => {
+            for (k, c) in m {
+                json_pointers(c, format!("{here}/{k}"), out);
+            }
+        }
+        serde_json::Value::Array(a) => {
+            for (i, c) in a.iter().enumerate() {
+                json_pointers(c, format!("{here}/{i}"), out);
+            }
+        }
+        _ => {}
+    }
+    out.push(here);
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig {
+        cases: 256,
+        failure_persistence: None,
+        ..proptest::prelude::ProptestConfig::default()
+    })]
+
+    /// A checkpoint whose manifest has any one field replaced by a hostile value, or whose
+    /// weights have a byte changed, loads or fails with an error: never a panic, an abort or an
+    /// allocation beyond the budgets.
+    #[test]
+    fn hostile_checkpoints_never_panic(
+        which in proptest::prelude::any::<proptest::sample::Index>(),
+        value in proptest::prop_oneof![
+            proptest::strategy::Just(serde_json::json!(null)),
+            proptest::strategy::Just(serde_json::json!(-1)),
+            proptest::strategy::Just(serde_json::json!(0)),
+            proptest::strategy::Just(serde_json::json!(1e300)),
+            proptest::strategy::Just(serde_json::json!(u64::MAX)),
+            proptest::strategy::Just(serde_json::json!(1_000_000_000)),
+            proptest::strategy::Just(serde_json::json!("../qf.safetensors")),
+            proptest::strategy::Just(serde_json::json!("")),
+            proptest::strategy::Just(serde_json::json!([])),
+            proptest::strategy::Just(serde_json::json!({})),
+        ],
+        flip in proptest::prelude::any::<Option<(proptest::sample::Index, u8)>>(),
+    ) {
+        static GOOD: OnceLock<(String, Vec<u8>)> = OnceLock::new();
+        let (json, weights) = GOOD.get_or_init(|| {
+            let f = fitted().encode("qf.safetensors").unwrap();
+            (f.manifest, f.weights)
+        });
+        let good: serde_json::Value = serde_json::from_str(json).unwrap();
+        let mut all = Vec::new();
+        json_pointers(&good, String::new(), &mut all);
+        let mut bad = good.clone();
+        let pointer: &String = which.get(&all);
+        if let Some(v) = bad.pointer_mut(pointer) {
+            *v = value;
+        }
+        let mut w = weights.clone();
+        if let Some((at, byte)) = flip {
+            let i = at.index(w.len());
+            w[i] = byte;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("qf.json");
+        std::fs::write(&path, bad.to_string()).unwrap();
+        std::fs::write(dir.path().join("qf.safetensors"), &w).unwrap();
+        let _ = QuadFormerDetector::load(&path);
+    }
 }
