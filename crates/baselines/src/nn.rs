@@ -59,6 +59,20 @@ impl NeuralConfig {
                 msg: format!("{} exceeds the budget of {MAX_HIDDEN}", self.hidden),
             });
         }
+        let batch = self.train.batch_size.max(SCORE_BATCH) as u64;
+        let elems = batch.saturating_mul(self.window.len as u64).saturating_mul(self.hidden as u64);
+        if elems > quadformer_model::detector::MAX_ACTIVATIONS {
+            return Err(BaselineError::Config {
+                field: "train.batch_size",
+                msg: format!(
+                    "{batch} windows of {} steps × {} hidden make activations of {elems} numbers, more than the \
+                     budget of {}",
+                    self.window.len,
+                    self.hidden,
+                    quadformer_model::detector::MAX_ACTIVATIONS
+                ),
+            });
+        }
         if self.kernel > self.window.len {
             return Err(BaselineError::Config {
                 field: "kernel",

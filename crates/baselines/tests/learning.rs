@@ -122,3 +122,20 @@ fn learning_detectors_are_send_and_sync() {
     check::<CnnConfig>();
     check::<LstmConfig>();
 }
+
+#[test]
+fn sizes_beyond_their_budgets_are_refused_by_name() {
+    let e = |r: baselines::Result<()>| r.unwrap_err().to_string();
+    let wide = NeuralConfig { hidden: 1_000_000_000, ..CnnConfig::default().0 };
+    assert!(e(wide.check()).contains("`hidden`: 1000000000 exceeds the budget of 4096"));
+    let mut heavy = CnnConfig::default().0;
+    heavy.hidden = 4_096;
+    heavy.window.len = 2_000;
+    heavy.train.batch_size = 65_536;
+    assert!(e(heavy.check()).contains("more than the budget of 268435456"));
+    let svm = SvmConfig { max_train: 1_000_000_000, ..SvmConfig::default() };
+    assert!(e(svm.check()).contains("`max_train`: 1000000000 exceeds the budget of 10000"));
+    CnnConfig::default().0.check().unwrap();
+    LstmConfig::default().0.check().unwrap();
+    SvmConfig::default().check().unwrap();
+}

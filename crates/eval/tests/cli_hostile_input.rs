@@ -175,15 +175,28 @@ fn sizes_that_drive_allocations_are_budgeted_before_allocating() {
     let err = fails(&["reproduce-tables", "--seeds", "4294967296", "--out", s(&tmp.path().join("res"))]);
     assert!(err.contains("--seeds must be between 1 and 100"), "{err}");
 
+    // Endless inputs are refused before reading, not read until memory runs out.
+    let err = fails(&["simulate", "--config", "/dev/zero", "--out", s(&tmp.path().join("x"))]);
+    assert!(err.contains("/dev/zero: is not a regular file"), "{err}");
+
     let fl = flight(tmp.path(), "flight");
     let ds = tmp.path().join("ds");
     std::fs::create_dir_all(&ds).unwrap();
     ok(&["residues", "--model", "I", "--in", s(&fl), "--out", s(&ds.join("a.csv"))]);
+    let model = tmp.path().join("cusum");
+    ok(&["train", "--method", "cusum", "--train", s(&ds), "--valid", s(&ds), "--out", s(&model)]);
+    let err = fails(&["detect", "--model", s(&model), "--in", "/dev/zero", "--out", s(&tmp.path().join("z.csv"))]);
+    assert!(err.contains("/dev/zero: is not a regular file"), "{err}");
     let cases = [
         ("svm", "[svm]\nmax_train = 1000000000\n", "`max_train`: 1000000000 exceeds the budget of 10000"),
         ("cnn", "[cnn]\nhidden = 1000000000\n", "`hidden`: 1000000000 exceeds the budget of 4096"),
         ("quadformer", "[quadformer.net]\nd_model = 1000000000\n", "`net.d_model`: 1000000000 exceeds the budget"),
         ("quadformer", "[quadformer.window]\nlen = 1000000000\n", "window.len"),
+        (
+            "quadformer",
+            "[quadformer.net]\nd_model = 8192\nd_ff = 8192\nn_layers = 64\n",
+            "weights, more than the budget",
+        ),
     ];
     for (method, toml, needle) in cases {
         std::fs::write(&cfg, toml).unwrap();
@@ -212,7 +225,12 @@ fn messages_name_each_file_once() {
     let (cfg, out) = (tmp.path().join("cfg"), tmp.path().join("out"));
     std::fs::create_dir(&cfg).unwrap();
     let err = fails(&["simulate", "--config", s(&cfg), "--out", s(&out)]);
-    assert_eq!(err.matches("os error 21").count(), 1, "{err}");
+    assert_eq!(err.matches("is a directory").count(), 1, "{err}");
+    // An operating-system error is printed once, not once per cause.
+    let afile = tmp.path().join("afile");
+    std::fs::write(&afile, "x").unwrap();
+    let err = fails(&["simulate", "--config", s(&afile.join("c.toml")), "--out", s(&out)]);
+    assert_eq!(err.matches("os error 20").count(), 1, "{err}");
     std::fs::write(cfg.join("m.json"), "{").unwrap();
     let model = tmp.path().join("model");
     std::fs::create_dir(&model).unwrap();

@@ -143,7 +143,11 @@ proptest! {
         for name in names {
             let text = std::fs::read_to_string(src.join(name)).unwrap();
             // Short streams at matching times, so the consistency checks are reached too.
-            let keep = if name == "imu.csv" { 400 } else { 22 };
+            let keep = match name {
+                "imu.csv" => 402,
+                "config.toml" => usize::MAX,
+                _ => 22,
+            };
             let bytes = if name == names[file] { mutate(&text, keep, &muts) } else { mutate(&text, keep, &[]) };
             std::fs::write(dir.join(name), bytes).unwrap();
         }
@@ -350,6 +354,71 @@ proptest! {
             // Whatever validates only names files inside the model directory, which has none:
             // loading reports them missing.
             let _ = eval::cli::detect::load_detector(&dir, &m);
+        }
+    }
+}
+
+/// A short valid flight directory (the fixture's first 2 s), written once.
+fn short_flight() -> &'static Path {
+    static DIR: std::sync::OnceLock<(tempfile::TempDir, PathBuf)> = std::sync::OnceLock::new();
+    &DIR.get_or_init(|| {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("flight");
+        std::fs::create_dir(&dir).unwrap();
+        for name in ["imu.csv", "gps.csv", "attitude.csv", "vo.csv", "attack.csv", "config.toml"] {
+            let text = std::fs::read_to_string(fixture().join(name)).unwrap();
+            let keep = match name {
+                "imu.csv" => 402,
+                "config.toml" => usize::MAX,
+                _ => 22,
+            };
+            std::fs::write(dir.join(name), mutate(&text, keep, &[])).unwrap();
+        }
+        (tmp, dir)
+    })
+    .1
+}
+
+/// Dotted paths of every leaf of `t`.
+fn leaves(t: &toml::Table, here: &str, out: &mut Vec<String>) {
+    for (k, v) in t {
+        let path = if here.is_empty() { k.clone() } else { format!("{here}.{k}") };
+        match v {
+            toml::Value::Table(sub) => leaves(sub, &path, out),
+            _ => out.push(path),
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// `residues --filter-config` with one field of the documented filter settings replaced by
+    /// a hostile value: an error naming the file or a result, never a crash.
+    #[test]
+    fn filter_configs_never_crash_residues(which in any::<prop::sample::Index>(), value in 0..TOML_VALUES.len()) {
+        let base = ekf_residue::residues::FilterConfig::new(ekf_residue::residues::ModelKind::ModelI);
+        let table = toml::Table::try_from(base).unwrap();
+        let mut all = Vec::new();
+        leaves(&table, "", &mut all);
+        let key = which.get(&all);
+        let (section, field) = key.rsplit_once('.').map_or((None, key.as_str()), |(s, f)| (Some(s), f));
+        let text = match section {
+            Some(s) => format!("[{s}]\n{field} = {}\n", TOML_VALUES[value]),
+            None => format!("{field} = {}\n", TOML_VALUES[value]),
+        };
+        let tmp = tempfile::tempdir().unwrap();
+        let cfg = tmp.path().join("filter.toml");
+        std::fs::write(&cfg, &text).unwrap();
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_quadformer"))
+            .args(["residues", "--model", "I", "--in", short_flight().to_str().unwrap()])
+            .args(["--out", tmp.path().join("r.csv").to_str().unwrap(), "--filter-config", cfg.to_str().unwrap()])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        prop_assert!(matches!(o.status.code(), Some(0 | 1)), "{text}: {err}");
+        if o.status.code() == Some(1) {
+            prop_assert!(err.contains("filter.toml") || err.contains("EKF failed"), "{text}: {err}");
         }
     }
 }

@@ -66,6 +66,34 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ModelError + '_ {
     move |source| ModelError::Io { path: path.to_path_buf(), source }
 }
 
+/// Budget of a checkpoint manifest file.
+pub const MAX_MANIFEST_BYTES: u64 = 16 << 20;
+/// Budget of a weights file (about 250 M `f32` weights).
+pub const MAX_WEIGHTS_BYTES: u64 = 1 << 30;
+
+/// The bytes of regular file `path`, at most `max` of them (a longer file gives its first
+/// `max` bytes, so the caller's size check reports it); devices and FIFOs are refused.
+fn read_bounded_bytes(path: &Path, max: u64) -> Result<Vec<u8>> {
+    use std::io::Read as _;
+    let file = std::fs::File::open(path).map_err(io(path))?;
+    let meta = file.metadata().map_err(io(path))?;
+    if !meta.is_file() {
+        return Err(ck(path, "not a regular file"));
+    }
+    let mut bytes = Vec::new();
+    file.take(max).read_to_end(&mut bytes).map_err(io(path))?;
+    Ok(bytes)
+}
+
+/// The text of regular file `path`, refused beyond `max` bytes.
+fn read_bounded(path: &Path, max: u64) -> Result<String> {
+    let bytes = read_bounded_bytes(path, max.saturating_add(1))?;
+    if bytes.len() as u64 > max {
+        return Err(ck(path, format!("more than the budget of {max} bytes for a manifest")));
+    }
+    String::from_utf8(bytes).map_err(|_| ck(path, "not UTF-8 text"))
+}
+
 /// Checks the manifest's numbers: thresholds and `crit_scale` finite, F1 values in [0, 1],
 /// at most one result per mode and the chosen mode among them.
 fn check_results(path: &Path, m: &Manifest) -> Result<()> {
@@ -179,7 +207,7 @@ impl QuadFormerDetector {
     /// [`ModelError::Io`] for a missing file; [`ModelError::Checkpoint`] naming the file for a
     /// malformed, truncated, corrupted or mismatched checkpoint.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(io(path))?;
+        let text = read_bounded(path, MAX_MANIFEST_BYTES)?;
         let manifest: Manifest = serde_json::from_str(&text).map_err(|e| {
             ck(path, format!("malformed manifest at line {}, column {}: {}", e.line(), e.column(), json_message(&e)))
         })?;
@@ -201,7 +229,14 @@ impl QuadFormerDetector {
             ));
         }
         let weights = path.with_file_name(&manifest.weights_file);
-        let bytes = std::fs::read(&weights).map_err(io(&weights))?;
+        if manifest.weights_bytes > MAX_WEIGHTS_BYTES {
+            return Err(ck(
+                path,
+                format!("weights_bytes {} exceeds the budget of {MAX_WEIGHTS_BYTES}", manifest.weights_bytes),
+            ));
+        }
+        // Read at most one byte more than the manifest says: a longer file is "extended".
+        let bytes = read_bounded_bytes(&weights, manifest.weights_bytes.saturating_add(1))?;
         if bytes.len() as u64 != manifest.weights_bytes {
             return Err(ck(
                 &weights,

@@ -151,6 +151,24 @@ impl QuadFormerConfig {
         self.window.check()?;
         self.net.check()?;
         self.train.check()?;
+        // The largest activation of a batch: attention maps (heads × len²) or hidden states
+        // (len × width) of every window of the batch.
+        let len = self.window.len as u64;
+        let width = (self.net.d_model.max(self.net.d_ff)) as u64;
+        let per_window = (self.net.n_heads as u64).saturating_mul(len * len).max(len.saturating_mul(width));
+        for (field, batch) in [("train.batch_size", self.train.batch_size), ("score.batch_size", self.score.batch_size)]
+        {
+            let elems = (batch as u64).saturating_mul(per_window);
+            if elems > MAX_ACTIVATIONS {
+                return Err(ModelError::Config {
+                    field,
+                    msg: format!(
+                        "{batch} windows of {len} steps make activations of {elems} numbers, more than the budget of \
+                         {MAX_ACTIVATIONS}; lower the batch size, window.len or the network's width"
+                    ),
+                });
+            }
+        }
         let l = &self.loss;
         for (field, v) in [
             ("loss.lambda", l.lambda),
@@ -183,6 +201,9 @@ impl QuadFormerConfig {
         Ok(())
     }
 }
+
+/// Budget of the largest activation tensor of a mini-batch, in numbers (1 GiB of `f32`).
+pub const MAX_ACTIVATIONS: u64 = 1 << 28;
 
 /// Validation result of one scoring mode.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -113,8 +113,21 @@ impl Default for NetConfig {
 pub const MAX_WIDTH: usize = 8_192;
 /// Budget of `n_heads` and `n_layers` (each).
 pub const MAX_DEPTH: usize = 64;
+/// Budget of the network's weights, counted as [`NetConfig::approx_params`]: 50 M (200 MB of
+/// `f32`; the paper-scale network has about 0.1 M).
+pub const MAX_PARAMS: u64 = 50_000_000;
 
 impl NetConfig {
+    /// The weights of the layers' attention projections and feed-forward blocks,
+    /// `n_layers·(4·d_model² + 2·d_model·d_ff)`, the bulk of the network (the budget's measure).
+    #[must_use]
+    pub fn approx_params(&self) -> u64 {
+        let (d, ff, l) = (self.d_model as u64, self.d_ff as u64, self.n_layers as u64);
+        l.saturating_mul(
+            4u64.saturating_mul(d).saturating_mul(d).saturating_add(2u64.saturating_mul(d).saturating_mul(ff)),
+        )
+    }
+
     /// Checks sizes and ranges, and the budgets [`MAX_WIDTH`] and [`MAX_DEPTH`].
     ///
     /// # Errors
@@ -140,6 +153,16 @@ impl NetConfig {
             if v > max {
                 return bad(field, format!("{v} exceeds the budget of {max}"));
             }
+        }
+        let params = self.approx_params();
+        if params > MAX_PARAMS {
+            return bad(
+                "net.d_model",
+                format!(
+                    "d_model {}, d_ff {}, n_layers {} make about {params} weights, more than the budget of {MAX_PARAMS}",
+                    self.d_model, self.d_ff, self.n_layers
+                ),
+            );
         }
         if !(self.p.is_finite() && self.p > 0.0) {
             return bad("net.p", format!("must be finite and positive, got {}", self.p));

@@ -81,8 +81,12 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     let input = |msg: String| CliError::Input { path: args.out.clone(), msg };
     let base = if args.quick { MatrixConfig::quick() } else { MatrixConfig::default() };
     let config = match &args.config {
-        Some(path) => MatrixConfig::from_toml_file(path, &base)
-            .map_err(|e| CliError::Config { path: path.clone(), msg: e.to_string() })?,
+        // Checked as a regular file within the text budget before the experiment code reads it;
+        // its errors name the file themselves.
+        Some(path) => {
+            crate::io::open_input(path, crate::io::MAX_TEXT_BYTES)?;
+            MatrixConfig::from_toml_file(path, &base).map_err(|e| CliError::Run(e.to_string()))?
+        }
         None => base,
     };
     let (cells, methods, seeds) = selection(args).map_err(input)?;

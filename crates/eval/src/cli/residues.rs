@@ -177,8 +177,7 @@ fn filter_config(args: &Args, flight: &FlightDir, model: ModelKind) -> Result<Fi
     let Some(path) = &args.filter_config else {
         return Ok(base);
     };
-    let text =
-        std::fs::read_to_string(path).map_err(|source| IoError::Fs { path: path.clone(), op: "read", source })?;
+    let text = crate::io::read_text(path)?;
     let toml_err = |msg: String| CliError::Io(IoError::Toml { path: path.clone(), msg });
     let mut user: toml::Table = text.parse().map_err(|e: toml::de::Error| toml_err(e.to_string()))?;
     let mut merged = toml::Table::try_from(base).map_err(|e| toml_err(e.to_string()))?;

@@ -266,8 +266,7 @@ pub fn method_configs(path: Option<&Path>, quick: bool, seed: u64) -> Result<Met
     let Some(path) = path else {
         return Ok(base.seeded(seed));
     };
-    let text =
-        std::fs::read_to_string(path).map_err(|source| IoError::Fs { path: path.to_owned(), op: "read", source })?;
+    let text = crate::io::read_text(path)?;
     let config_err = |msg: String| CliError::Config { path: path.to_owned(), msg };
     let user: toml::Table = text.parse().map_err(|e: toml::de::Error| config_err(e.to_string()))?;
     let mut merged = toml::Table::try_from(&base).map_err(|e| config_err(e.to_string()))?;
@@ -519,8 +518,7 @@ fn check_fields(m: &ModelManifest) -> Result<(), String> {
 pub fn read_manifest(model_dir: &Path) -> Result<ModelManifest, CliError> {
     let path = model_dir.join(MODEL_FILE);
     let bad = |msg: String| CliError::Input { path: path.clone(), msg };
-    let text =
-        std::fs::read_to_string(&path).map_err(|source| IoError::Fs { path: path.clone(), op: "read", source })?;
+    let text = crate::io::read_text(&path)?;
     let m: ModelManifest = serde_json::from_str(&text).map_err(|e| {
         bad(format!("malformed model manifest at line {}, column {}: {}", e.line(), e.column(), json_message(&e)))
     })?;

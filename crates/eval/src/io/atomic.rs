@@ -155,8 +155,16 @@ fn process_alive(pid: u32) -> bool {
 }
 
 /// Removes the temporaries in `dir` left by processes that no longer run (a killed earlier
-/// write). Failures are ignored: cleaning is a courtesy, never a reason to fail the output.
+/// write), once per directory and process (a process that is gone leaves no new ones).
+/// Failures are ignored: cleaning is a courtesy, never a reason to fail the output.
 pub fn remove_stale_temps(dir: &Path) {
+    static CLEANED: std::sync::Mutex<Option<std::collections::HashSet<PathBuf>>> = std::sync::Mutex::new(None);
+    let key = dir.canonicalize().unwrap_or_else(|_| dir.to_owned());
+    if let Ok(mut seen) = CLEANED.lock()
+        && !seen.get_or_insert_with(Default::default).insert(key)
+    {
+        return;
+    }
     let Ok(entries) = std::fs::read_dir(dir) else { return };
     let me = std::process::id();
     for entry in entries.flatten() {

@@ -21,7 +21,8 @@ pub enum IoError {
         source: std::io::Error,
     },
     /// An output would replace or reach something it must not (a device, FIFO or symbolic
-    /// link; an input; a model's own file), or cannot be created where asked.
+    /// link; an input; a model's own file), or cannot be created where asked; or an input is
+    /// not a regular file or exceeds its size budget.
     #[error("{}: {msg}", path.display())]
     Unsafe {
         /// The output path (or the ancestor) concerned.

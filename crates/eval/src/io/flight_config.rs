@@ -186,11 +186,7 @@ impl FlightConfig {
     /// # Errors
     /// [`IoError::Fs`] if unreadable; as [`FlightConfig::from_toml`].
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|source| IoError::Fs {
-            path: path.to_owned(),
-            op: "read",
-            source,
-        })?;
+        let text = crate::io::input_file::read_text(path)?;
         Self::from_toml(path, &text)
     }
 

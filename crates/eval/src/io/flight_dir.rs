@@ -21,6 +21,7 @@ use uav_dynamics::{SensorStreams, TruthSample};
 use crate::io::atomic::{Overwrite, write_dir_atomic, write_text_atomic};
 use crate::io::attack::{AttackRecord, TIME_MATCH_TOL_S, read_attack, write_attack};
 use crate::io::error::{IoError, Result};
+use crate::io::input_file::read_text;
 use crate::io::streams::{
     read_attitude, read_gps, read_imu, read_truth, read_vo, require_file, write_attitude, write_gps, write_imu,
     write_truth, write_vo,
@@ -92,7 +93,7 @@ pub fn read_flight_dir(dir: &Path) -> Result<FlightDir> {
         None => None,
     };
     let config_toml = match present(dir, CONFIG_FILE) {
-        Some(p) => Some(std::fs::read_to_string(&p).map_err(|source| IoError::Fs { path: p, op: "read", source })?),
+        Some(p) => Some(read_text(&p)?),
         None => None,
     };
     Ok(FlightDir { streams, truth, attack, config_toml })

@@ -28,6 +28,7 @@ mod attack;
 mod error;
 mod flight_config;
 mod flight_dir;
+mod input_file;
 mod output_check;
 mod residues;
 mod streams;
@@ -46,6 +47,7 @@ pub use flight_dir::{
     ATTACK_FILE, ATTITUDE_FILE, CONFIG_FILE, FlightDir, GPS_FILE, IMU_FILE, TRUTH_FILE, VO_FILE, read_flight_dir,
     write_flight_dir,
 };
+pub use input_file::{MAX_CSV_BYTES, MAX_TEXT_BYTES, open_input, read_text};
 pub use output_check::{Input, Output, check_outputs};
 pub use residues::{CovarianceLayout, r_column, read_residues, s_column, stage_residues, write_residues};
 pub use streams::{

@@ -38,7 +38,7 @@ impl Row {
 impl CsvIn {
     /// Opens `path` and reads its header.
     pub(crate) fn open(path: &Path) -> Result<Self> {
-        let file = File::open(path).map_err(|source| IoError::Fs { path: path.to_owned(), op: "open", source })?;
+        let file = crate::io::input_file::open_input(path, crate::io::input_file::MAX_CSV_BYTES)?;
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(false)
             .flexible(true)

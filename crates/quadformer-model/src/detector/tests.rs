@@ -334,3 +334,19 @@ proptest::proptest! {
         let _ = QuadFormerDetector::load(&path);
     }
 }
+
+#[test]
+fn configurations_beyond_the_weight_and_activation_budgets_are_refused() {
+    let mut big = config();
+    big.net.d_model = 8_192;
+    big.net.d_ff = 8_192;
+    big.net.n_layers = 64;
+    let e = big.check().unwrap_err().to_string();
+    assert!(e.contains("more than the budget of 50000000"), "{e}");
+    let mut wide = config();
+    wide.window.len = 2_000;
+    wide.train.batch_size = 65_536;
+    let e = wide.check().unwrap_err().to_string();
+    assert!(e.contains("`train.batch_size`") && e.contains("more than the budget of 268435456"), "{e}");
+    QuadFormerConfig::default().check().unwrap();
+}
