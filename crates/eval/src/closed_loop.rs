@@ -769,7 +769,7 @@ pub fn closed_loop(opts: &Options) -> Result<(Vec<ClosedLoopRow>, Vec<PathBuf>)>
         let series: Vec<ErrorSeries<'_>> =
             rec.drift.errors.iter().map(|(l, p)| ErrorSeries { label: l, points: p }).collect();
         let title = format!(
-            "Protected position error on a drift flight ({}, {} noise, ramp test flight, seed 0, latency 0)",
+            "Position error on a drift flight ({}, {} noise, seed 0, latency 0)",
             model_name(u.model),
             u.noise.name()
         );
