@@ -105,6 +105,9 @@ pub struct DurationsConfig {
     /// Noise-injection interval length. Default `[1.0, 5.0]` s (choice, burst-like).
     pub noise_s: [f64; 2],
     /// Oscillating-attack interval length. Default `[10.0, 40.0]` s (persistent, as Attack II).
+    /// Left out of the serialised form at its default, so configurations written before this
+    /// field existed keep their dataset cache keys.
+    #[serde(skip_serializing_if = "is_default_oscillating_s")]
     pub oscillating_s: [f64; 2],
 }
 
@@ -173,7 +176,7 @@ pub struct AttackConfig {
     pub ramp_slope_mps: Option<[f64; 2]>,
     /// Oscillation frequency range `[min, max]` in Hz of [`AttackKind::Oscillating`], drawn
     /// uniformly per interval. Default `[0.1, 0.3]` around 0.2 Hz.
-    #[serde(default = "default_oscillation_hz")]
+    #[serde(default = "default_oscillation_hz", skip_serializing_if = "is_default_oscillation_hz")]
     pub oscillation_hz: [f64; 2],
     /// Replay delay range `[min, max]` in seconds. Default `[1.0, 5.0]` around the 2 s of
     /// `gps_spoofer.py` (estimation-and-detectors.md §5).
@@ -200,6 +203,14 @@ const fn default_ramp_probability() -> f64 {
 }
 const fn default_oscillation_hz() -> [f64; 2] {
     [0.1, 0.3]
+}
+#[allow(clippy::trivially_copy_pass_by_ref, clippy::float_cmp)] // serde's signature; exact defaults.
+fn is_default_oscillation_hz(v: &[f64; 2]) -> bool {
+    *v == default_oscillation_hz()
+}
+#[allow(clippy::trivially_copy_pass_by_ref, clippy::float_cmp)] // serde's signature; exact defaults.
+fn is_default_oscillating_s(v: &[f64; 2]) -> bool {
+    *v == DurationsConfig::default().oscillating_s
 }
 const fn default_replay_delay_s() -> [f64; 2] {
     [1.0, 5.0]

@@ -295,3 +295,19 @@ fn oscillating_offset_is_a_sine_from_the_interval_start() {
         assert!((0.1..=0.3).contains(&freq_hz));
     }
 }
+
+#[test]
+fn default_configs_serialise_without_the_newer_fields() {
+    // Dataset cache keys hash this JSON: a configuration at its defaults must read as it did
+    // before the oscillating attack and the ramp slopes existed.
+    for kind in [AttackKind::Sparse, AttackKind::Persistent, AttackKind::Replay] {
+        let json = serde_json::to_string(&AttackConfig::new(kind)).unwrap();
+        for field in ["oscillating_s", "oscillation_hz", "ramp_slope_mps"] {
+            assert!(!json.contains(field), "{field} in {json}");
+        }
+    }
+    let mut cfg = AttackConfig::new(AttackKind::Oscillating);
+    cfg.oscillation_hz = [0.2, 0.2];
+    let back: AttackConfig = serde_json::from_str(&serde_json::to_string(&cfg).unwrap()).unwrap();
+    assert_eq!(back, cfg);
+}

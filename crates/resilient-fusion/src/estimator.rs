@@ -309,7 +309,7 @@ impl<'d> ResilientEstimator<'d> {
                 decision = Some(d);
             }
         }
-        self.apply_decisions(t)?;
+        self.apply_decisions(t, meas.gps.is_some())?;
         let reset = meas.gps.is_some() && self.reset_due(t);
         if reset {
             // Step 4 of the module doc: re-admit GPS with a position reset onto this fix.
@@ -352,8 +352,10 @@ impl<'d> ResilientEstimator<'d> {
         }
     }
 
-    /// Apply every decision available at `t` and run the hysteresis.
-    fn apply_decisions(&mut self, t: f64) -> Result<()> {
+    /// Apply every decision available at `t` and run the hysteresis; GPS is only re-admitted
+    /// on a step that carries a fix (`has_gps`), so with `hold_s = 0` an attitude- or VO-only
+    /// step between fixes does not end an exclusion.
+    fn apply_decisions(&mut self, t: f64, has_gps: bool) -> Result<()> {
         // Tolerance: decision times are sums of sample times and the latency.
         let eps = 1e-9;
         let mut alarm_now = false;
@@ -377,6 +379,7 @@ impl<'d> ResilientEstimator<'d> {
         // A step whose own decision alarms is never the one that re-admits (this matters for
         // `hold_s = 0`, where the next step without an alarm re-admits).
         if let Some(t0) = self.excluded_since
+            && has_gps
             && !alarm_now
             && t - self.last_alarm_avail >= self.cfg.hold_s - eps
         {

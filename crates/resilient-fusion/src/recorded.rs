@@ -116,7 +116,9 @@ pub fn fly_recorded(
         let ai = take(s.attitude.len(), &mut a, &|i| s.attitude[i].t, "attitude")?;
         let vi = take(s.vo.len(), &mut v, &|i| s.vo[i].t, "vo")?;
         let sent = gi.map(|i| {
-            let clean = GpsSample { t, p: s.gps[i].p };
+            // The fix keeps its own time stamp (within half an IMU period of `t`), so a
+            // recorded attack is looked up where it was recorded.
+            let clean = s.gps[i];
             let out = attack.apply(&clean, &history);
             history.push(clean);
             out
