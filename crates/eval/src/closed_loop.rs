@@ -49,7 +49,7 @@ use crate::io::{AttackRecord, FlightDir, TIME_MATCH_TOL_S, write_text_atomic};
 use crate::metrics::{MeanStd, detection_delays, false_alarms, quantile};
 use crate::plot::{ErrorSeries, error_time_plot};
 use crate::reproduce::{Options, ReproduceError, Result};
-use crate::runner::{Method, fit};
+use crate::runner::{Method, fit, read_json_cache, write_json_cache};
 use crate::table::{NoiseModel, UavModel, to_csv};
 
 /// Bumped when the unit's computation changes, so cached units are recomputed.
@@ -308,19 +308,14 @@ fn merge(splits: Vec<LabelledResidues>) -> Result<LabelledResidues> {
 /// # Errors
 /// Any stage's error, naming the unit.
 fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<UnitRecord> {
-    let cache = opts.out.join("runs").join("closed-loop");
-    let trained_cfgs: Vec<_> = Family::TRAINED
-        .iter()
-        .map(|&f| family_dataset(unit, f, opts).check().map_err(dataset_err(unit, f)).map(|c| (f, c)))
-        .collect::<Result<_>>()?;
     let test_cfgs: Vec<_> = Family::ALL
         .iter()
         .map(|&f| family_dataset(unit, f, opts).check().map_err(dataset_err(unit, f)).map(|c| (f, c)))
         .collect::<Result<_>>()?;
+    let trained_cfgs: Vec<_> = test_cfgs.iter().filter(|(f, _)| f.trained()).collect();
     let key = unit_key(unit, opts, methods, &test_cfgs)?;
-    let path = cache.join(format!("{}.json", unit.slug()));
-    if let Ok(text) = std::fs::read_to_string(&path)
-        && let Ok(rec) = serde_json::from_str::<UnitRecord>(&text)
+    let path = opts.out.join("runs").join("closed-loop").join(format!("{}.json", unit.slug()));
+    if let Some(rec) = read_json_cache::<UnitRecord>(&path)
         && rec.key == key
     {
         return Ok(rec);
@@ -328,18 +323,22 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
 
     // Training and validation data: the trained families' protected flights.
     let (mut train, mut valid) = (Vec::new(), Vec::new());
-    for (f, cfg) in &trained_cfgs {
-        let (data, _) = load_or_build(cfg, &opts.out.join("datasets")).map_err(dataset_err(unit, *f))?;
-        train.push(data.train().map_err(dataset_err(unit, *f))?);
-        valid.push(data.valid().map_err(dataset_err(unit, *f))?);
+    for &(f, cfg) in &trained_cfgs {
+        let f = *f;
+        let (data, _) = load_or_build(cfg, &opts.out.join("datasets")).map_err(dataset_err(unit, f))?;
+        train.push(data.train().map_err(dataset_err(unit, f))?);
+        valid.push(data.valid().map_err(dataset_err(unit, f))?);
     }
     let (train, valid) = (merge(train)?, merge(valid)?);
     let cfgs = opts.config.methods.seeded(unit.seed);
     // Every family of a unit shares the cell's simulator and filter.
-    let filter = family_dataset(unit, Family::Sparse, opts).filter;
+    let Some((_, first)) = test_cfgs.first() else {
+        return Err(ReproduceError::Config("closed loop: no attack family".into()));
+    };
+    let filter = first.get().filter;
     let valid_flights: Vec<PlannedFlight> = trained_cfgs
         .iter()
-        .map(|(f, c)| plan_split(c, Split::Valid).map_err(dataset_err(unit, *f)))
+        .map(|&(f, c)| plan_split(c, Split::Valid).map_err(dataset_err(unit, *f)))
         .collect::<Result<Vec<_>>>()?
         .into_iter()
         .flatten()
@@ -383,10 +382,7 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
         }
     }
     let rec = UnitRecord { key, rows, drift };
-    let text = serde_json::to_string(&rec).map_err(|e| ReproduceError::Config(format!("closed-loop cache: {e}")))?;
-    std::fs::create_dir_all(&cache)
-        .map_err(|e| ReproduceError::Config(format!("{}: cannot create: {e}", cache.display())))?;
-    write_text_atomic(&path, &text)?;
+    write_json_cache(&path, &rec)?;
     Ok(rec)
 }
 
@@ -706,10 +702,7 @@ fn unit_key(
     let m = serde_json::to_string(&opts.config.methods.seeded(unit.seed))
         .map_err(|e| ReproduceError::Config(format!("closed-loop key: {e}")))?;
     h.update(m.as_bytes());
-    Ok(h.finalize().iter().fold(String::new(), |mut s, b| {
-        let _ = write!(s, "{b:02x}");
-        s
-    }))
+    Ok(crate::dataset::hex(&h.finalize()))
 }
 
 /// Runs the experiment for the options' units and writes `closed_loop.csv`, `table3.md`,

@@ -450,7 +450,8 @@ fn derive_seed(seed: u64, split: Split, index: u64, stream: Stream) -> u64 {
     z
 }
 
-fn hex(bytes: &[u8]) -> String {
+/// Lowercase hexadecimal of `bytes` (cache keys).
+pub(crate) fn hex(bytes: &[u8]) -> String {
     use std::fmt::Write as _;
     bytes.iter().fold(String::with_capacity(bytes.len() * 2), |mut s, b| {
         let _ = write!(s, "{b:02x}");

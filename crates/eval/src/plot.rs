@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
@@ -131,6 +132,26 @@ fn finite_range(values: impl IntoIterator<Item = f64>) -> Option<(f64, f64)> {
         None => Some((v, v)),
         Some((lo, hi)) => Some((lo.min(v), hi.max(v))),
     })
+}
+
+/// Shades the attack intervals `[a, b)` across the plot's height `y`, with one legend entry.
+fn shade_attacks<DB: DrawingBackend>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    attacks: &[(f64, f64)],
+    y: &Range<f64>,
+) -> std::result::Result<(), String> {
+    let red = RGBColor(214, 39, 40);
+    for (i, &(a, b)) in attacks.iter().enumerate() {
+        let series = chart
+            .draw_series(std::iter::once(Rectangle::new([(a, y.start), (b, y.end)], red.mix(0.15).filled())))
+            .map_err(|e| e.to_string())?;
+        if i == 0 {
+            series
+                .label("attack interval")
+                .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 20, y + 6)], red.mix(0.3).filled()));
+        }
+    }
+    Ok(())
 }
 
 fn legend_line(c: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
@@ -347,19 +368,7 @@ impl Figure for StatisticFigure<'_> {
             .label_style((FONT, 15))
             .draw()
             .map_err(|e| e.to_string())?;
-        let shade = RGBColor(214, 39, 40).mix(0.15);
-        let mut first = true;
-        for &(a, b) in tr.attacks {
-            let series = chart
-                .draw_series(std::iter::once(Rectangle::new([(a, self.y.start), (b, self.y.end)], shade.filled())))
-                .map_err(|e| e.to_string())?;
-            if first {
-                series.label("attack interval").legend(|(x, y)| {
-                    Rectangle::new([(x, y - 6), (x + 20, y + 6)], RGBColor(214, 39, 40).mix(0.3).filled())
-                });
-                first = false;
-            }
-        }
+        shade_attacks(&mut chart, tr.attacks, &self.y)?;
         let c = colour(0);
         chart
             .draw_series(LineSeries::new(tr.t.iter().copied().zip(tr.statistic.iter().copied()), c.stroke_width(2)))
@@ -461,19 +470,7 @@ impl Figure for ErrorFigure<'_> {
             .label_style((FONT, 15))
             .draw()
             .map_err(|e| e.to_string())?;
-        let shade = RGBColor(214, 39, 40).mix(0.15);
-        let mut first = true;
-        for &(a, b) in self.attacks {
-            let series = chart
-                .draw_series(std::iter::once(Rectangle::new([(a, self.y.start), (b, self.y.end)], shade.filled())))
-                .map_err(|e| e.to_string())?;
-            if first {
-                series.label("attack interval").legend(|(x, y)| {
-                    Rectangle::new([(x, y - 6), (x + 20, y + 6)], RGBColor(214, 39, 40).mix(0.3).filled())
-                });
-                first = false;
-            }
-        }
+        shade_attacks(&mut chart, self.attacks, &self.y)?;
         for (i, s) in self.series.iter().enumerate() {
             let c = colour(i);
             let clipped = s.points.iter().map(|&(t, e)| (t, e.min(self.y.end)));

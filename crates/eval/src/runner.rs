@@ -466,8 +466,7 @@ pub fn cache_path(cache_dir: &Path, cell: Cell, method: Method, seed: u64, key: 
 /// Loads a cached record if it exists, parses, and has the expected key; anything else is a
 /// cache miss (a corrupt or stale file is recomputed, never trusted).
 pub fn load_cached(path: &Path, key: &str) -> Option<RunRecord> {
-    let text = std::fs::read_to_string(path).ok()?;
-    let rec: RunRecord = serde_json::from_str(&text).ok()?;
+    let rec: RunRecord = read_json_cache(path)?;
     (rec.key == key && rec.result.check().is_ok()).then_some(rec)
 }
 
@@ -476,11 +475,24 @@ pub fn load_cached(path: &Path, key: &str) -> Option<RunRecord> {
 /// # Errors
 /// [`RunError::Cache`] naming the file.
 pub fn store_cached(path: &Path, rec: &RunRecord) -> Result<()> {
+    write_json_cache(path, rec)
+}
+
+/// Reads a JSON cache file; a missing, unreadable or unparsable file is a miss (`None`).
+pub(crate) fn read_json_cache<T: serde::de::DeserializeOwned>(path: &Path) -> Option<T> {
+    serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
+}
+
+/// Writes a JSON cache file atomically, creating its directory.
+///
+/// # Errors
+/// [`RunError::Cache`] naming the file.
+pub(crate) fn write_json_cache<T: Serialize>(path: &Path, value: &T) -> Result<()> {
     let cache_err = |msg: String| RunError::Cache { path: path.to_owned(), msg };
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|e| cache_err(e.to_string()))?;
     }
-    let text = serde_json::to_string_pretty(rec).map_err(|e| cache_err(e.to_string()))?;
+    let text = serde_json::to_string_pretty(value).map_err(|e| cache_err(e.to_string()))?;
     write_text_atomic(path, &text).map_err(|e| cache_err(e.to_string()))
 }
 

@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use attack_inject::AttackKind;
 use ekf_residue::Detector;
 use ekf_residue::detector::OnlineDetector;
-use ekf_residue::residues::{FilterConfig, GPS_CHANNELS, ModelKind};
+use ekf_residue::residues::{GPS_CHANNELS, ModelKind};
 use resilient_fusion::estimator::{NisGate, ResilientConfig};
 use resilient_fusion::recorded::fly_recorded;
 use resilient_fusion::scenario::{Case, Scenario, ScenarioConfig, run_case};
@@ -31,7 +31,7 @@ use uav_dynamics::noise::NoiseShape;
 
 use crate::cli::CliError;
 use crate::cli::detect::load_detector;
-use crate::cli::residues::ModelArg;
+use crate::cli::residues::{ModelArg, flight_filter};
 use crate::cli::train::read_manifest;
 use crate::closed_loop::{flight_from_dir, loop_metrics};
 use crate::dataset::{DatasetConfig, load_or_build};
@@ -402,15 +402,7 @@ struct LoopRow {
 fn fly_folder(args: &Args, dir: &Path, det: &FusionDetector) -> Result<(), CliError> {
     let folder = crate::io::read_flight_dir(dir)?;
     let model = ModelKind::from(args.ekf);
-    let filter = match &folder.config_toml {
-        Some(text) => {
-            let path = dir.join(crate::io::CONFIG_FILE);
-            let cfg = crate::io::FlightConfig::from_toml(&path, text)
-                .map_err(|e| CliError::Config { path, msg: e.to_string() })?;
-            FilterConfig::for_sim(model, &cfg.sim)
-        }
-        None => FilterConfig::new(model),
-    };
+    let filter = flight_filter(dir, &folder, model)?;
     let (flight, attack) = flight_from_dir(&folder);
     let mut cfg = ResilientConfig { latency_s: args.latency_s, ..ResilientConfig::default() };
     cfg.detector_channels = det.channels();

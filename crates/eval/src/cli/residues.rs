@@ -153,27 +153,34 @@ fn check_streams(dir: &Path, flight: &FlightDir, model: ModelKind) -> Result<(),
     Ok(())
 }
 
+/// The filter a flight folder `dir` asks for: the sensor σ of its `config.toml`, or the
+/// documented defaults without one. A `config.toml` that does not parse is an error, since it
+/// would silently change the noise model.
+///
+/// # Errors
+/// [`CliError::Input`] naming `config.toml` and the field.
+pub(crate) fn flight_filter(dir: &Path, flight: &FlightDir, model: ModelKind) -> Result<FilterConfig, CliError> {
+    let Some(text) = &flight.config_toml else {
+        return Ok(FilterConfig::new(model));
+    };
+    let path = dir.join(CONFIG_FILE);
+    let cfg = FlightConfig::from_toml(&path, text).map_err(|e| CliError::Input {
+        path: path.clone(),
+        msg: format!(
+            "{}\n(the filter's noise model is taken from this file; fix it, or remove it to use the \
+             documented default filter settings)",
+            match e {
+                IoError::Toml { msg, .. } => msg,
+                other => other.to_string(),
+            }
+        ),
+    })?;
+    Ok(FilterConfig::for_sim(model, &cfg.sim))
+}
+
 /// The filter configuration (see the module doc for the precedence).
 fn filter_config(args: &Args, flight: &FlightDir, model: ModelKind) -> Result<FilterConfig, CliError> {
-    let base = match &flight.config_toml {
-        Some(text) => {
-            let path = args.input.join(CONFIG_FILE);
-            // A config that does not parse would silently change the noise model: refuse it.
-            let cfg = FlightConfig::from_toml(&path, text).map_err(|e| CliError::Input {
-                path: path.clone(),
-                msg: format!(
-                    "{}\n(the filter's noise model is taken from this file; fix it, or remove it to use the \
-                     documented default filter settings)",
-                    match e {
-                        IoError::Toml { msg, .. } => msg,
-                        other => other.to_string(),
-                    }
-                ),
-            })?;
-            FilterConfig::for_sim(model, &cfg.sim)
-        }
-        None => FilterConfig::new(model),
-    };
+    let base = flight_filter(&args.input, flight, model)?;
     let Some(path) = &args.filter_config else {
         return Ok(base);
     };

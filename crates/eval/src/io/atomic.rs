@@ -1,8 +1,8 @@
 //! Atomic output, the one implementation every writer of QUADFormer-rs uses: a file is written
 //! to a temporary file in its target directory and renamed into place; a directory is filled
 //! as a temporary sibling and renamed. On any error the temporary is removed, so no partly
-//! written output is ever visible under the final name (HOUSE_STYLE rule 14; docs/cli.md
-//! "Safety rules").
+//! written output is ever visible under the final name (docs/cli.md "Safety rules";
+//! docs/decisions/071-atomic-output.md).
 //!
 //! Rules kept here, for every output:
 //! - only a regular file (by a file writer) or a directory (by a directory writer) is ever
