@@ -59,6 +59,7 @@ pub mod error;
 pub mod geodetic;
 pub mod model1_filter;
 pub mod model2_filter;
+pub mod noise_check;
 pub mod residues;
 pub mod series;
 

@@ -20,6 +20,7 @@
 
 pub mod controller;
 pub mod error;
+pub mod frames;
 pub mod model1;
 pub mod model2;
 pub mod noise;

@@ -125,6 +125,15 @@ pub enum IoError {
         /// What is wrong.
         msg: String,
     },
+    /// A PX4 ULog cannot be read or lacks what a flight needs (naming the topic or field, and
+    /// listing the topics the log has where one is missing).
+    #[error("{}: {msg}", path.display())]
+    Ulog {
+        /// The log file.
+        path: PathBuf,
+        /// What is wrong.
+        msg: String,
+    },
     /// A TOML config could not be parsed or encoded.
     #[error("{}: {msg}", path.display())]
     Toml {

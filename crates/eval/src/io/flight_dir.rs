@@ -9,7 +9,11 @@
 //! DIR/truth.csv     optional  true state per IMU step
 //! DIR/attack.csv    optional  injected GPS offsets and labels, one row per GPS fix
 //! DIR/config.toml   optional  the configuration `quadformer simulate` used
+//! DIR/filter.toml   optional  filter settings for this flight's sensors (FilterConfig keys)
 //! ```
+//!
+//! [`read_flight`] reads either such a directory or a PX4 ULog (`crate::io::read_ulog`), so
+//! every command that takes a flight takes both.
 //!
 //! Which streams a model needs is checked by the consumer (the `residues` command), so that a
 //! user's own log with only the files one model needs is accepted.
@@ -22,6 +26,7 @@ use crate::io::atomic::{Overwrite, write_dir_atomic, write_text_atomic};
 use crate::io::attack::{AttackRecord, TIME_MATCH_TOL_S, read_attack, write_attack};
 use crate::io::error::{IoError, Result};
 use crate::io::input_file::read_text;
+use crate::io::ulog::{UlogOptions, is_ulog, read_ulog};
 use crate::io::streams::{
     read_attitude, read_gps, read_imu, read_truth, read_vo, require_file, write_attitude, write_gps, write_imu,
     write_truth, write_vo,
@@ -41,6 +46,9 @@ pub const TRUTH_FILE: &str = "truth.csv";
 pub const ATTACK_FILE: &str = "attack.csv";
 /// File name of the configuration a simulated flight was made with.
 pub const CONFIG_FILE: &str = "config.toml";
+/// File name of the filter settings that suit a flight's sensors (e.g. R from a receiver's
+/// reported accuracy): `ekf_residue::residues::FilterConfig` keys, merged over the base filter.
+pub const FILTER_FILE: &str = "filter.toml";
 
 /// The contents of a flight directory.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -53,6 +61,52 @@ pub struct FlightDir {
     pub attack: Option<Vec<AttackRecord>>,
     /// Text of `config.toml`, if it exists.
     pub config_toml: Option<String>,
+    /// Text of `filter.toml`, if it exists.
+    pub filter_toml: Option<String>,
+}
+
+/// A flight read by [`read_flight`], with what its conversion reported.
+#[derive(Debug, Clone, Default)]
+pub struct LoadedFlight {
+    /// The flight, as a directory would hold it.
+    pub flight: FlightDir,
+    /// For a ULog: where each stream came from and what was dropped, one line each.
+    pub notes: Vec<String>,
+}
+
+/// Reads a flight from a flight directory or a PX4 ULog file (recognised by its magic bytes).
+///
+/// A ULog gives the streams of [`crate::io::read_ulog`] and, when the receiver reports its
+/// accuracy, a `filter.toml` that sets the GPS σ from it; it has no truth and no attack file.
+///
+/// # Errors
+/// As [`read_flight_dir`] or [`crate::io::read_ulog`]; [`IoError::MissingFile`] for a path
+/// that is neither a directory nor a ULog.
+pub fn read_flight(path: &Path, ulog: &UlogOptions) -> Result<LoadedFlight> {
+    if path.is_dir() {
+        return Ok(LoadedFlight { flight: read_flight_dir(path)?, notes: Vec::new() });
+    }
+    if !is_ulog(path) {
+        return Err(IoError::MissingFile {
+            path: path.to_owned(),
+            why: "a flight directory or a PX4 ULog (.ulg) file is required".into(),
+        });
+    }
+    let log = read_ulog(path, ulog)?;
+    let filter_toml = log.gps_sigma_m.map(|s| {
+        format!(
+            "# Filter settings of a flight converted from the PX4 log {}:\n\
+             # GPS σ from the receiver's reported accuracy (median eph, eph, epv over the fixes used).\n\
+             [meas]\ngps_sigma_m = [{:?}, {:?}, {:?}]\n",
+            path.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+            s[0],
+            s[1],
+            s[2]
+        )
+    });
+    let mut notes = log.sources;
+    notes.extend(log.notes);
+    Ok(LoadedFlight { flight: FlightDir { streams: log.streams, filter_toml, ..FlightDir::default() }, notes })
 }
 
 /// Which optional files of a flight directory are present.
@@ -92,11 +146,9 @@ pub fn read_flight_dir(dir: &Path) -> Result<FlightDir> {
         }
         None => None,
     };
-    let config_toml = match present(dir, CONFIG_FILE) {
-        Some(p) => Some(read_text(&p)?),
-        None => None,
-    };
-    Ok(FlightDir { streams, truth, attack, config_toml })
+    let config_toml = present(dir, CONFIG_FILE).map(|p| read_text(&p)).transpose()?;
+    let filter_toml = present(dir, FILTER_FILE).map(|p| read_text(&p)).transpose()?;
+    Ok(FlightDir { streams, truth, attack, config_toml, filter_toml })
 }
 
 fn check_attack_matches_gps(path: &Path, attack: &[AttackRecord], streams: &SensorStreams) -> Result<()> {
@@ -155,6 +207,9 @@ pub fn write_flight_dir(dir: &Path, flight: &FlightDir, overwrite: Overwrite) ->
         }
         if let Some(cfg) = &flight.config_toml {
             write_text_atomic(&tmp.join(CONFIG_FILE), cfg)?;
+        }
+        if let Some(cfg) = &flight.filter_toml {
+            write_text_atomic(&tmp.join(FILTER_FILE), cfg)?;
         }
         Ok(())
     })

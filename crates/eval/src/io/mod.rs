@@ -34,6 +34,7 @@ mod residues;
 mod streams;
 mod table;
 mod toml_merge;
+mod ulog;
 
 pub use atomic::{
     OutputKind, Overwrite, Staged, TEMP_PREFIX, check_dir_output, check_replaceable, commit_all, remove_stale_temps,
@@ -44,7 +45,8 @@ pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, labels_at, read
 pub use error::{IoError, Result};
 pub use flight_config::{FlightConfig, MAX_SEED, SeedStream, TrajectoryConfig, TrajectoryKind};
 pub use flight_dir::{
-    ATTACK_FILE, ATTITUDE_FILE, CONFIG_FILE, FlightDir, GPS_FILE, IMU_FILE, TRUTH_FILE, VO_FILE, read_flight_dir,
+    ATTACK_FILE, ATTITUDE_FILE, CONFIG_FILE, FILTER_FILE, FlightDir, GPS_FILE, IMU_FILE, LoadedFlight, TRUTH_FILE, VO_FILE,
+    read_flight, read_flight_dir,
     write_flight_dir,
 };
 pub use input_file::{MAX_CSV_BYTES, MAX_TEXT_BYTES, open_input, read_text};
@@ -56,3 +58,6 @@ pub use streams::{
     stage_truth, write_attitude, write_gps, write_imu, write_truth, write_vo,
 };
 pub use toml_merge::merge_over;
+pub use ulog::{
+    DEFAULT_MIN_FIX_TYPE, MAX_ULOG_BYTES, ULOG_MAGIC, UlogFlight, UlogOptions, VO_KEYFRAME_PERIOD_S, is_ulog, read_ulog,
+};
