@@ -37,7 +37,7 @@ pub const NIS_FACTOR: f64 = 2.0;
 /// A round of [`estimate_measurement_noise`] shrinks a σ at most by this factor.
 pub const MAX_SHRINK: f64 = 10.0;
 /// Smallest σ the estimate returns (metres or radians).
-pub const SIGMA_FLOOR: f64 = 1e-3;
+pub const SIGMA_FLOOR: f64 = 1e-4;
 /// Rounds of [`estimate_measurement_noise`] at most; it stops earlier when no σ moves by 2 %.
 pub const MAX_ROUNDS: usize = 12;
 

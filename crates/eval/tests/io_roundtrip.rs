@@ -64,7 +64,13 @@ fn flight() -> impl Strategy<Value = FlightDir> {
                     truth.push(TruthSample { t, p: a, q: b, v: c, b_g: d, b_a: e });
                     attack.push(AttackRecord { t, label, d: if label { e } else { Vector3::zeros() } });
                 }
-                FlightDir { streams, truth: Some(truth), attack: Some(attack), config_toml: Some("seed = 7\n".into()), filter_toml: None }
+                FlightDir {
+                    streams,
+                    truth: Some(truth),
+                    attack: Some(attack),
+                    config_toml: Some("seed = 7\n".into()),
+                    filter_toml: None,
+                }
             })
     })
 }

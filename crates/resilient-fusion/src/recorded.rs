@@ -88,6 +88,10 @@ pub fn fly_recorded(
             msg: format!("{} truth samples for {} IMU samples", flight.truth.len(), s.imu.len()),
         });
     }
+    // A measurement is processed at the IMU step nearest to it: step `k` takes the samples up
+    // to the midpoint between its time and the next IMU sample's (simulated streams share the
+    // IMU's clock exactly; a log's topics do not). Before the first IMU sample, half its first
+    // period is tolerated.
     let tol = match s.imu.as_slice() {
         [a, b, ..] => 0.5 * (b.t - a.t).abs(),
         _ => 1e-6,
@@ -98,17 +102,19 @@ pub fn fly_recorded(
     let mut steps = Vec::with_capacity(s.gps.len());
     let (mut rt, mut rr, mut rs, mut labels) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut channels: Option<&'static [&'static str]> = None;
+    let t_first = s.imu.first().map_or(0.0, |i| i.t);
     for (k, imu) in s.imu.iter().enumerate() {
         let truth = flight.truth.get(k);
         let t = imu.t;
+        let bound = s.imu.get(k + 1).map_or(t + tol, |next| 0.5 * (t + next.t));
         let take = |len: usize, idx: &mut usize, time: &dyn Fn(usize) -> f64, what: &'static str| {
-            if *idx < len && time(*idx) < t - tol {
+            if *idx < len && time(*idx) < t_first - tol {
                 return Err(FusionError::Config {
                     field: what,
                     msg: format!("sample at {:.6} s matches no IMU sample", time(*idx)),
                 });
             }
-            let hit = *idx < len && (time(*idx) - t).abs() <= tol;
+            let hit = *idx < len && time(*idx) <= bound;
             *idx += usize::from(hit);
             Ok(hit.then(|| *idx - 1))
         };
@@ -116,7 +122,7 @@ pub fn fly_recorded(
         let ai = take(s.attitude.len(), &mut a, &|i| s.attitude[i].t, "attitude")?;
         let vi = take(s.vo.len(), &mut v, &|i| s.vo[i].t, "vo")?;
         let sent = gi.map(|i| {
-            // The fix keeps its own time stamp (within half an IMU period of `t`), so a
+            // The fix keeps its own time stamp (it is processed at the nearest IMU step), so a
             // recorded attack is looked up where it was recorded.
             let clean = s.gps[i];
             let out = attack.apply(&clean, &history);

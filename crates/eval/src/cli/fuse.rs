@@ -35,7 +35,7 @@ use crate::cli::residues::{ModelArg, flight_filter};
 use crate::cli::train::read_manifest;
 use crate::closed_loop::{flight_from_dir, loop_metrics};
 use crate::dataset::{DatasetConfig, load_or_build};
-use crate::io::{Input, Output, check_outputs, write_into_dir_atomic, write_text_atomic};
+use crate::io::{Input, Output, UlogOptions, check_outputs, write_into_dir_atomic, write_text_atomic};
 use crate::runner::{Method, MethodConfigs, fit};
 use crate::scenarios::{ScenarioRow, markdown, plot_case, rows, write_csv};
 
@@ -129,9 +129,12 @@ pub struct Args {
     #[arg(long, value_enum, required_unless_present = "input", conflicts_with = "input")]
     pub scenario: Option<ScenarioArg>,
     /// A flight folder to fly instead of a scenario (imu.csv and the streams the EKF needs;
-    /// attack.csv gives the labels, truth.csv the position errors).
-    #[arg(long = "in", value_name = "DIR")]
+    /// attack.csv gives the labels, truth.csv the position errors), or a PX4 ULog file.
+    #[arg(long = "in", value_name = "DIR|LOG.ulg")]
     pub input: Option<PathBuf>,
+    /// ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all).
+    #[arg(long, value_name = "N", default_value_t = crate::io::DEFAULT_MIN_FIX_TYPE, requires = "input")]
+    pub gps_min_fix: u8,
     /// EKF of a flight folder: I (GPS + attitude) or II (VO + GPS).
     #[arg(long, value_enum, default_value = "II", requires = "input")]
     pub ekf: ModelArg,
@@ -400,9 +403,13 @@ struct LoopRow {
 
 /// `fuse --in DIR`: fly a flight folder through the resilient estimator with the detector.
 fn fly_folder(args: &Args, dir: &Path, det: &FusionDetector) -> Result<(), CliError> {
-    let folder = crate::io::read_flight_dir(dir)?;
+    let loaded = crate::io::read_flight(dir, &UlogOptions { min_fix_type: args.gps_min_fix })?;
+    for note in &loaded.notes {
+        eprintln!("{}: {note}", dir.display());
+    }
+    let folder = loaded.flight;
     let model = ModelKind::from(args.ekf);
-    let filter = flight_filter(dir, &folder, model)?;
+    let (filter, _) = flight_filter(dir, &folder, model)?;
     let (flight, attack) = flight_from_dir(&folder);
     let mut cfg = ResilientConfig { latency_s: args.latency_s, ..ResilientConfig::default() };
     cfg.detector_channels = det.channels();

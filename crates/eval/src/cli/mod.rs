@@ -21,6 +21,7 @@ pub mod dataset;
 pub mod detect;
 pub mod figures;
 pub mod fuse;
+pub mod inject;
 pub mod reproduce_tables;
 pub mod residues;
 pub mod simulate;
@@ -43,9 +44,12 @@ pub enum Command {
     /// Simulate a flight from a TOML config and write its sensor streams, truth and attack
     /// labels as a flight directory.
     Simulate(simulate::Args),
-    /// Run the Model I or Model II EKF on a flight directory (simulated or your own log) and
-    /// write the residue sequence r_k, S_k, NIS (and labels, if known) as CSV.
+    /// Run the Model I or Model II EKF on a flight directory (simulated or your own log) or a
+    /// PX4 ULog and write the residue sequence r_k, S_k, NIS (and labels, if known) as CSV.
     Residues(residues::Args),
+    /// Inject one GPS attack (bias, sparse, ramp, oscillating, replay, freeze) into a recorded
+    /// flight (a PX4 ULog or a flight directory) and write a labelled flight directory.
+    Inject(inject::Args),
     /// Run the paper's experiment matrix (Model I/II × exponential/Laplace noise × Attack I/II)
     /// for every method and write Tables I and II, ROC plots, sweeps, ablations and a report.
     ReproduceTables(reproduce_tables::Args),
@@ -73,6 +77,7 @@ pub fn run(cli: &Cli) -> Result<(), CliError> {
     match &cli.command {
         Command::Simulate(args) => simulate::run(args),
         Command::Residues(args) => residues::run(args),
+        Command::Inject(args) => inject::run(args),
         Command::ReproduceTables(args) => reproduce_tables::run(args),
         Command::Dataset(args) => dataset::run(args),
         Command::Train(args) => train::run(args),

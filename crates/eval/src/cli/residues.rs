@@ -1,23 +1,33 @@
-//! `quadformer residues`: flight directory → residue CSV (paper alg:alg1, eq:ekf_update;
-//! docs/data-format.md "Residue file").
+//! `quadformer residues`: flight directory or PX4 ULog → residue CSV (paper Alg. 1;
+//! docs/data-format.md "Residue file" and "From a PX4 log").
 //!
-//! The EKF (`ekf_residue::residues::generate_residues`) runs on the streams of the directory.
-//! Its noise model is, in order of precedence: the `--filter-config` file (keys left out keep
-//! the base values), else the simulator settings of the directory's `config.toml` when it was
-//! made by `quadformer simulate` (`FilterConfig::for_sim`, a consistent filter; a
-//! `config.toml` that does not parse is an error, not a silent fall-back), else the
-//! documented defaults (`FilterConfig::new`). Labels come from `attack.csv` when present: a
-//! residue step is attacked when the GPS fix at its time is (`eval::io::labels_at`).
+//! The EKF (`ekf_residue::residues::generate_residues`) runs on the streams of the flight.
+//! Its noise model is built up in layers, each overriding the keys it sets:
+//! 1. the simulator settings of the directory's `config.toml` when it was made by
+//!    `quadformer simulate` (`FilterConfig::for_sim`, a consistent filter; a `config.toml`
+//!    that does not parse is an error, not a silent fall-back), else the documented defaults
+//!    (`FilterConfig::new`);
+//! 2. the flight's own `filter.toml` (a ULog's: GPS σ from the receiver's eph/epv);
+//! 3. the `--filter-config` file;
+//! 4. with `--estimate-noise`, the measurement σ estimated from the first clean stretch
+//!    (`ekf_residue::noise_check`).
+//!
+//! The filter used is written beside the output (`OUT.filter.toml`, every key), and a warning
+//! is printed when a channel's NIS on the first clean stretch is far from what a consistent
+//! filter gives. Labels come from `attack.csv` when present: a residue step is attacked when
+//! the GPS fix at its time is (`eval::io::labels_at`).
 
 use std::path::{Path, PathBuf};
 
+use ekf_residue::noise_check::{NIS_FACTOR, estimate_measurement_noise, nis_check};
 use ekf_residue::residues::{FilterConfig, ModelKind, generate_residues};
 use uav_dynamics::TruthSample;
 
 use crate::cli::CliError;
 use crate::io::{
-    ATTITUDE_FILE, CONFIG_FILE, CovarianceLayout, FlightConfig, FlightDir, GPS_FILE, Input, IoError, Output, VO_FILE,
-    check_outputs, commit_all, labels_at, merge_over, read_flight_dir, stage_residues, stage_truth,
+    ATTITUDE_FILE, CONFIG_FILE, CovarianceLayout, DEFAULT_MIN_FIX_TYPE, FILTER_FILE, FlightConfig, FlightDir, GPS_FILE,
+    Input, IoError, Output, UlogOptions, VO_FILE, check_outputs, commit_all, labels_at, merge_over, read_flight,
+    stage_file, stage_residues, stage_truth,
 };
 
 /// Which EKF model to run (paper sec:residue_generator).
@@ -65,12 +75,13 @@ pub struct Args {
     /// EKF model: I (GPS + attitude) or II (VO + GPS, keyframe cloning).
     #[arg(long, value_enum)]
     pub model: ModelArg,
-    /// Flight directory: imu.csv plus the streams the model needs (I: gps.csv and
-    /// attitude.csv; II: vo.csv, with gps.csv and attitude.csv used when present); truth.csv
-    /// and attack.csv are optional.
-    #[arg(long = "in", value_name = "DIR")]
+    /// Flight directory (imu.csv plus the streams the model needs: I: gps.csv and
+    /// attitude.csv; II: vo.csv, with gps.csv and attitude.csv used when present; truth.csv,
+    /// attack.csv and filter.toml are optional), or a PX4 ULog file (.ulg).
+    #[arg(long = "in", value_name = "DIR|LOG.ulg")]
     pub input: PathBuf,
-    /// Output residue CSV (written atomically).
+    /// Output residue CSV (written atomically); the filter used goes beside it, as
+    /// FILE.filter.toml.
     #[arg(long, value_name = "FILE.csv")]
     pub out: PathBuf,
     /// How to store S_k.
@@ -86,6 +97,19 @@ pub struct Args {
     /// Do not write a label column even if attack.csv exists.
     #[arg(long)]
     pub no_labels: bool,
+    /// Estimate the measurement σ from the flight's first clean stretch (covariance matching)
+    /// and use them; the figures used are printed and written to FILE.filter.toml.
+    #[arg(long)]
+    pub estimate_noise: bool,
+    /// ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all).
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_MIN_FIX_TYPE)]
+    pub gps_min_fix: u8,
+}
+
+/// Where the filter record of a residue file goes: `FILE.csv` → `FILE.filter.toml`.
+#[must_use]
+pub fn filter_record_path(out: &Path) -> PathBuf {
+    out.with_extension("filter.toml")
 }
 
 /// Runs `quadformer residues`.
@@ -94,22 +118,47 @@ pub struct Args {
 /// [`CliError`] naming the file, line and column of bad input, a stream the model needs that
 /// is missing, or the filter time at which the EKF failed.
 pub fn run(args: &Args) -> Result<(), CliError> {
+    let record = filter_record_path(&args.out);
     let mut inputs = vec![Input::new("--in", &args.input)];
     inputs.extend(args.filter_config.as_deref().map(|p| Input::new("--filter-config", p)));
-    let mut outputs = vec![Output::file("--out", &args.out)];
+    let mut outputs = vec![Output::file("--out", &args.out), Output::file("the filter record", &record)];
     outputs.extend(args.estimates.as_deref().map(|p| Output::file("--estimates", p)));
     check_outputs(&inputs, &outputs)?;
-    let flight = read_flight_dir(&args.input)?;
+    let loaded = read_flight(&args.input, &UlogOptions { min_fix_type: args.gps_min_fix })?;
+    for note in &loaded.notes {
+        eprintln!("{}: {note}", args.input.display());
+    }
+    let flight = loaded.flight;
     let model = ModelKind::from(args.model);
     check_streams(&args.input, &flight, model)?;
-    let cfg = filter_config(args, &flight, model)?;
+    let (mut cfg, mut sources) = filter_config(args, &flight, model)?;
+    let label_fn = |t: &[f64]| match (&flight.attack, args.no_labels) {
+        (Some(attack), false) => labels_at(t, attack),
+        _ => vec![false; t.len()],
+    };
+    if args.estimate_noise {
+        let est = estimate_measurement_noise(&flight.streams, &cfg, &label_fn)
+            .map_err(|e| CliError::Filter { path: args.input.clone(), msg: format!("--estimate-noise: {e}") })?;
+        eprintln!(
+            "--estimate-noise: {} clean residue steps, t {:.2}–{:.2} s, {} rounds of covariance matching:",
+            est.steps, est.t_span.0, est.t_span.1, est.rounds
+        );
+        for c in &est.sigmas {
+            eprintln!("  {:<10} σ {:.6} → {:.6}", c.channel, c.before, c.after);
+        }
+        sources.push(format!(
+            "measurement σ estimated from the clean residue steps at t {:.2}–{:.2} s (--estimate-noise)",
+            est.t_span.0, est.t_span.1
+        ));
+        cfg = est.config;
+    }
     let out = generate_residues(&flight.streams, &cfg)
         .map_err(|e| CliError::Filter { path: args.input.clone(), msg: e.to_string() })?;
     let labels = match (&flight.attack, args.no_labels) {
         (Some(attack), false) => Some(labels_at(out.series.t(), attack)),
         _ => None,
     };
-    // Both outputs are staged and committed together: a failure writing either leaves neither.
+    // The outputs are staged and committed together: a failure writing any leaves none.
     let mut staged = vec![stage_residues(&args.out, &out.series, labels.as_deref(), args.covariance.into())?];
     if let Some(path) = &args.estimates {
         let rows: Vec<TruthSample> = out
@@ -119,6 +168,13 @@ pub fn run(args: &Args) -> Result<(), CliError> {
             .collect();
         staged.push(stage_truth(path, &rows)?);
     }
+    let text =
+        filter_record(&cfg, &sources).map_err(|msg| CliError::Io(IoError::Toml { path: record.clone(), msg }))?;
+    staged.push(stage_file(&record, |mut file| {
+        use std::io::Write as _;
+        file.write_all(text.as_bytes()).map_err(|source| IoError::Fs { path: record.clone(), op: "write", source })?;
+        Ok(file)
+    })?);
     commit_all(staged)?;
     let n = out.series.len();
     #[allow(clippy::cast_precision_loss)] // step counts are far below 2^52
@@ -127,11 +183,60 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         .as_ref()
         .map_or_else(|| "unlabelled".to_owned(), |l| format!("{} attacked", l.iter().filter(|&&x| x).count()));
     eprintln!(
-        "wrote {}: {n} residue steps ({attacked}), channels {}, mean NIS {mean_nis:.3}",
+        "wrote {}: {n} residue steps ({attacked}), channels {}, mean NIS {mean_nis:.3}; filter used: {}",
         args.out.display(),
-        out.series.channels().join(" ")
+        out.series.channels().join(" "),
+        record.display()
     );
+    warn_if_inconsistent(&args.input, &out.series, labels.as_deref(), args.estimate_noise);
     Ok(())
+}
+
+/// Prints a warning when a channel's NIS on the first clean stretch says its σ is mis-set.
+fn warn_if_inconsistent(input: &Path, series: &ekf_residue::ResidueSeries, labels: Option<&[bool]>, estimated: bool) {
+    let Some(check) = nis_check(series, labels) else {
+        eprintln!(
+            "note: {}: the first clean stretch is too short to check the filter's noise settings",
+            input.display()
+        );
+        return;
+    };
+    let far = check.far_channels();
+    if far.is_empty() {
+        return;
+    }
+    let list: Vec<String> = far.iter().map(|(c, r)| format!("{c} {r:.3}")).collect();
+    eprintln!(
+        "warning: {}: on the first clean stretch (t {:.2}–{:.2} s, {} steps) the mean of r²/S per channel should \
+         be 1, but is {} (mean NIS {:.3} for {} channels): the filter's σ of {} look mis-set (off by more than \
+         {NIS_FACTOR}× in variance). {}",
+        input.display(),
+        check.t_span.0,
+        check.t_span.1,
+        check.steps,
+        list.join(", "),
+        check.mean_nis,
+        check.channels,
+        if far.iter().all(|(_, r)| *r < 1.0) { "these channels (too large)" } else { "these channels" },
+        if estimated {
+            "The estimate did not settle them; check the stretch for manoeuvres the model misses."
+        } else {
+            "Re-run with --estimate-noise, or set them with --filter-config."
+        }
+    );
+}
+
+/// The filter record: where each layer came from, then every key of the filter used.
+fn filter_record(cfg: &FilterConfig, sources: &[String]) -> Result<String, String> {
+    let body = toml::to_string(cfg).map_err(|e| e.to_string())?;
+    let mut text = String::from("# The filter `quadformer residues` ran with (pass it back with --filter-config).\n");
+    for s in sources {
+        text.push_str("# - ");
+        text.push_str(&s.replace(['\n', '\r'], " "));
+        text.push('\n');
+    }
+    text.push_str(&body);
+    Ok(text)
 }
 
 /// Checks that the directory has the streams `model` needs, naming the missing file.
@@ -153,39 +258,55 @@ fn check_streams(dir: &Path, flight: &FlightDir, model: ModelKind) -> Result<(),
     Ok(())
 }
 
-/// The filter a flight folder `dir` asks for: the sensor σ of its `config.toml`, or the
-/// documented defaults without one. A `config.toml` that does not parse is an error, since it
-/// would silently change the noise model.
+/// The filter a flight asks for: the sensor σ of its `config.toml` (or the documented defaults
+/// without one), with its `filter.toml` merged over them; and one line per layer saying where
+/// it came from. A `config.toml` that does not parse is an error, since it would silently
+/// change the noise model.
 ///
 /// # Errors
-/// [`CliError::Input`] naming `config.toml` and the field.
-pub(crate) fn flight_filter(dir: &Path, flight: &FlightDir, model: ModelKind) -> Result<FilterConfig, CliError> {
-    let Some(text) = &flight.config_toml else {
-        return Ok(FilterConfig::new(model));
+/// [`CliError::Input`] naming `config.toml` and the field; [`CliError::Config`] for a bad
+/// `filter.toml`.
+pub(crate) fn flight_filter(
+    dir: &Path,
+    flight: &FlightDir,
+    model: ModelKind,
+) -> Result<(FilterConfig, Vec<String>), CliError> {
+    let mut sources = Vec::new();
+    let base = match &flight.config_toml {
+        None => {
+            sources.push("base: the documented default filter settings".to_owned());
+            FilterConfig::new(model)
+        }
+        Some(text) => {
+            let path = dir.join(CONFIG_FILE);
+            let cfg = FlightConfig::from_toml(&path, text).map_err(|e| CliError::Input {
+                path: path.clone(),
+                msg: format!(
+                    "{}\n(the filter's noise model is taken from this file; fix it, or remove it to use the \
+                     documented default filter settings)",
+                    match e {
+                        IoError::Toml { msg, .. } => msg,
+                        other => other.to_string(),
+                    }
+                ),
+            })?;
+            sources.push(format!("base: the simulated sensors of {}", path.display()));
+            FilterConfig::for_sim(model, &cfg.sim)
+        }
     };
-    let path = dir.join(CONFIG_FILE);
-    let cfg = FlightConfig::from_toml(&path, text).map_err(|e| CliError::Input {
-        path: path.clone(),
-        msg: format!(
-            "{}\n(the filter's noise model is taken from this file; fix it, or remove it to use the \
-             documented default filter settings)",
-            match e {
-                IoError::Toml { msg, .. } => msg,
-                other => other.to_string(),
-            }
-        ),
-    })?;
-    Ok(FilterConfig::for_sim(model, &cfg.sim))
+    let Some(text) = &flight.filter_toml else { return Ok((base, sources)) };
+    let path = if dir.is_dir() { dir.join(FILTER_FILE) } else { dir.to_owned() };
+    let cfg = merge_filter(base, text, &path, model)?;
+    sources.push(format!("the flight's filter settings ({})", path.display()));
+    for line in text.lines().filter(|l| l.starts_with("# ")) {
+        sources.push(format!("  {}", &line[2..]));
+    }
+    Ok((cfg, sources))
 }
 
-/// The filter configuration (see the module doc for the precedence).
-fn filter_config(args: &Args, flight: &FlightDir, model: ModelKind) -> Result<FilterConfig, CliError> {
-    let base = flight_filter(&args.input, flight, model)?;
-    let Some(path) = &args.filter_config else {
-        return Ok(base);
-    };
-    let text = crate::io::read_text(path)?;
-    let toml_err = |msg: String| CliError::Io(IoError::Toml { path: path.clone(), msg });
+/// `base` with the TOML `text` (FilterConfig keys; `model` ignored) merged over it.
+fn merge_filter(base: FilterConfig, text: &str, path: &Path, model: ModelKind) -> Result<FilterConfig, CliError> {
+    let toml_err = |msg: String| CliError::Io(IoError::Toml { path: path.to_owned(), msg });
     let mut user: toml::Table = text.parse().map_err(|e: toml::de::Error| toml_err(e.to_string()))?;
     let mut merged = toml::Table::try_from(base).map_err(|e| toml_err(e.to_string()))?;
     user.remove("model"); // --model decides
@@ -193,6 +314,18 @@ fn filter_config(args: &Args, flight: &FlightDir, model: ModelKind) -> Result<Fi
     let mut cfg: FilterConfig =
         merged.try_into().map_err(|e: toml::de::Error| toml_err(e.message().trim().to_owned()))?;
     cfg.model = model;
-    cfg.check().map_err(|e| CliError::Config { path: path.clone(), msg: e.to_string() })?;
+    cfg.check().map_err(|e| CliError::Config { path: path.to_owned(), msg: e.to_string() })?;
     Ok(cfg)
+}
+
+/// The filter configuration and its provenance (see the module doc for the layers).
+fn filter_config(args: &Args, flight: &FlightDir, model: ModelKind) -> Result<(FilterConfig, Vec<String>), CliError> {
+    let (base, mut sources) = flight_filter(&args.input, flight, model)?;
+    let Some(path) = &args.filter_config else {
+        return Ok((base, sources));
+    };
+    let text = crate::io::read_text(path)?;
+    let cfg = merge_filter(base, &text, path, model)?;
+    sources.push(format!("--filter-config {}", path.display()));
+    Ok((cfg, sources))
 }

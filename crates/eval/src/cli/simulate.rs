@@ -144,5 +144,11 @@ pub fn simulate_flight(config_path: &Path, cfg: &FlightConfig) -> Result<FlightD
 
     let used = FlightConfig { duration_s: Some(duration_s), ..cfg.clone() };
     let config_toml = used.to_toml(&config_path.with_file_name(CONFIG_FILE))?;
-    Ok(FlightDir { streams, truth: Some(truth), attack: Some(attack), config_toml: Some(config_toml), filter_toml: None })
+    Ok(FlightDir {
+        streams,
+        truth: Some(truth),
+        attack: Some(attack),
+        config_toml: Some(config_toml),
+        filter_toml: None,
+    })
 }

@@ -26,11 +26,11 @@ use crate::io::atomic::{Overwrite, write_dir_atomic, write_text_atomic};
 use crate::io::attack::{AttackRecord, TIME_MATCH_TOL_S, read_attack, write_attack};
 use crate::io::error::{IoError, Result};
 use crate::io::input_file::read_text;
-use crate::io::ulog::{UlogOptions, is_ulog, read_ulog};
 use crate::io::streams::{
     read_attitude, read_gps, read_imu, read_truth, read_vo, require_file, write_attitude, write_gps, write_imu,
     write_truth, write_vo,
 };
+use crate::io::ulog::{UlogOptions, is_ulog, read_ulog};
 
 /// File name of the IMU stream.
 pub const IMU_FILE: &str = "imu.csv";

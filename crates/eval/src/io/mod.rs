@@ -45,9 +45,8 @@ pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, labels_at, read
 pub use error::{IoError, Result};
 pub use flight_config::{FlightConfig, MAX_SEED, SeedStream, TrajectoryConfig, TrajectoryKind};
 pub use flight_dir::{
-    ATTACK_FILE, ATTITUDE_FILE, CONFIG_FILE, FILTER_FILE, FlightDir, GPS_FILE, IMU_FILE, LoadedFlight, TRUTH_FILE, VO_FILE,
-    read_flight, read_flight_dir,
-    write_flight_dir,
+    ATTACK_FILE, ATTITUDE_FILE, CONFIG_FILE, FILTER_FILE, FlightDir, GPS_FILE, IMU_FILE, LoadedFlight, TRUTH_FILE,
+    VO_FILE, read_flight, read_flight_dir, write_flight_dir,
 };
 pub use input_file::{MAX_CSV_BYTES, MAX_TEXT_BYTES, open_input, read_text};
 pub use output_check::{Input, Output, check_outputs};

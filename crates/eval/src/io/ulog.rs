@@ -274,7 +274,11 @@ pub fn read_ulog(path: &Path, opts: &UlogOptions) -> Result<UlogFlight> {
         err(format!(
             "no {what} topic ({}); the log has: {}",
             wanted.join(" or "),
-            if counts.is_empty() { "no data at all".to_owned() } else { counts.keys().cloned().collect::<Vec<_>>().join(", ") }
+            if counts.is_empty() {
+                "no data at all".to_owned()
+            } else {
+                counts.keys().cloned().collect::<Vec<_>>().join(", ")
+            }
         ))
     };
     let mut out = UlogFlight { topics: counts.clone(), ..UlogFlight::default() };
@@ -301,8 +305,10 @@ pub fn read_ulog(path: &Path, opts: &UlogOptions) -> Result<UlogFlight> {
 
     if let Some(att) = topics.get(ATTITUDE_TOPIC) {
         let poses = poses(path, ATTITUDE_TOPIC, att, t0, None)?;
-        out.streams.attitude =
-            resample(&poses, &clock).into_iter().map(|(t, _, r)| AttitudeSample { t, q: euler_from_matrix(&r) }).collect();
+        out.streams.attitude = resample(&poses, &clock)
+            .into_iter()
+            .map(|(t, _, r)| AttitudeSample { t, q: euler_from_matrix(&r) })
+            .collect();
         out.sources.push(format!(
             "attitude: {ATTITUDE_TOPIC} ({} samples, interpolated at the {} fix times)",
             out.streams.attitude.len(),
@@ -364,14 +370,12 @@ fn convert_imu(path: &Path, topic: &Topic, t0: u64, notes: &mut Vec<String>) -> 
         let g = Vector3::new(gyro[0][k], gyro[1][k], gyro[2][k]);
         let a = Vector3::new(accel[0][k], accel[1][k], accel[2][k]);
         let t = seconds(topic.t_us[k], t0);
-        let bad = |what: &str, v: &Vector3<f64>, max: f64, unit: &str| {
-            IoError::Ulog {
-                path: path.to_owned(),
-                msg: format!(
-                    "{IMU_TOPIC} message {k} (t = {t} s): {what} {v:?} is not finite or beyond ±{max} {unit}",
-                    v = v.as_slice()
-                ),
-            }
+        let bad = |what: &str, v: &Vector3<f64>, max: f64, unit: &str| IoError::Ulog {
+            path: path.to_owned(),
+            msg: format!(
+                "{IMU_TOPIC} message {k} (t = {t} s): {what} {v:?} is not finite or beyond ±{max} {unit}",
+                v = v.as_slice()
+            ),
         };
         if !g.iter().all(|x| x.is_finite() && x.abs() <= MAX_GYRO_RAD_S) {
             return Err(bad("gyro_rad", &g, MAX_GYRO_RAD_S, "rad/s"));
@@ -600,7 +604,13 @@ fn px4_innovations(path: &Path, topic: &Topic, t0: u64) -> Result<Vec<(f64, Vect
     Ok(out)
 }
 
-fn geodetic_track(path: &Path, name: &str, topic: &Topic, t0: u64, frame: &LocalEnu) -> Result<Vec<(f64, Vector3<f64>)>> {
+fn geodetic_track(
+    path: &Path,
+    name: &str,
+    topic: &Topic,
+    t0: u64,
+    frame: &LocalEnu,
+) -> Result<Vec<(f64, Vector3<f64>)>> {
     let geo = GeoCols::of(path, name, topic)?;
     let (rows, _) = increasing_rows(&topic.t_us, t0);
     Ok(rows
