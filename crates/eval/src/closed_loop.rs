@@ -711,7 +711,6 @@ fn unit_key(
 /// # Errors
 /// Any unit's error; [`ReproduceError::Io`] and plot errors for the outputs.
 pub fn closed_loop(opts: &Options) -> Result<(Vec<ClosedLoopRow>, Vec<PathBuf>)> {
-    let start = Instant::now();
     let methods: Vec<LoopMethod> = LoopMethod::all()
         .into_iter()
         .filter(|m| match m {
@@ -720,21 +719,23 @@ pub fn closed_loop(opts: &Options) -> Result<(Vec<ClosedLoopRow>, Vec<PathBuf>)>
         })
         .collect();
     let units = units(opts);
+    let progress = crate::progress::Progress::new(units.len() as u64, opts.progress, "closed-loop units");
     let records = units
         .par_iter()
         .map(|&u| {
             let t0 = Instant::now();
+            progress.set_message(format!("closed loop {}", u.slug()));
             let r = run_unit(u, opts, &methods);
-            eprintln!(
-                "closed loop {}: {} in {:.0} s (total {:.0} s)",
+            progress.finish_unit(&format!(
+                "closed loop {} {} in {:.0} s",
                 u.slug(),
                 if r.is_ok() { "done" } else { "failed" },
-                t0.elapsed().as_secs_f64(),
-                start.elapsed().as_secs_f64()
-            );
+                t0.elapsed().as_secs_f64()
+            ));
             r
         })
         .collect::<Result<Vec<_>>>()?;
+    progress.finish();
     let mut rows: Vec<ClosedLoopRow> = records.iter().flat_map(|r| r.rows.iter().cloned()).collect();
     let rank = |r: &ClosedLoopRow| {
         (

@@ -11,6 +11,7 @@ pub mod dataset;
 pub mod io;
 pub mod metrics;
 pub mod plot;
+pub mod progress;
 pub mod reproduce;
 pub mod runner;
 pub mod runtime;

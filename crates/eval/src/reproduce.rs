@@ -15,7 +15,6 @@ use std::time::Instant;
 use attack_inject::{AmplitudeConfig, AttackKind};
 use ekf_residue::residues::{MODEL2_VO_CHANNELS, ModelKind};
 use ekf_residue::{Detector, LabelledResidues};
-use indicatif::{ProgressBar, ProgressStyle};
 use quadformer_model::Prior;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -278,19 +277,6 @@ pub fn load_cell(cell: Cell, seed: u64, opts: &Options) -> Result<Dataset> {
     Ok(data)
 }
 
-fn progress_bar(len: u64, show: bool) -> ProgressBar {
-    if !show {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(len);
-    if let Ok(style) =
-        ProgressStyle::with_template("{elapsed_precise} [{wide_bar}] {pos}/{len} runs, ETA {eta} | {msg}")
-    {
-        bar.set_style(style);
-    }
-    bar
-}
-
 /// Whether `method` can run on `cell` with this configuration.
 fn applicable(method: Method, cell: Cell, cfg: &MatrixConfig) -> bool {
     !(method == Method::Px4Gate && cell.model == UavModel::II && cfg.model2_channels == Model2Channels::Vo)
@@ -316,7 +302,7 @@ pub fn run_matrix(opts: &Options) -> Result<Vec<RunRecord>> {
 pub fn run_matrix_keeping(opts: &Options, keep: Option<(Cell, u64)>) -> Result<(Vec<RunRecord>, KeptFits)> {
     let units: Vec<(u64, Cell)> = (0..opts.seeds).flat_map(|s| opts.cells.iter().map(move |c| (s, *c))).collect();
     let n_runs = units.len() * opts.methods.len();
-    let bar = progress_bar(n_runs as u64, opts.progress);
+    let bar = crate::progress::Progress::new(n_runs as u64, opts.progress, "runs");
     let cache_dir = opts.out.join("runs");
     let kept = std::sync::Mutex::new(KeptFits::new());
     let records: Vec<Vec<RunRecord>> = units
@@ -329,7 +315,7 @@ pub fn run_matrix_keeping(opts: &Options, keep: Option<(Cell, u64)>) -> Result<(
             let mut out = Vec::new();
             for &method in &opts.methods {
                 if !applicable(method, cell, &opts.config) {
-                    bar.inc(1);
+                    bar.finish_unit(&format!("{} seed {seed}: {} does not apply", cell.slug(), method.name()));
                     continue;
                 }
                 bar.set_message(format!("{} seed {seed}: {}", cell.slug(), method.name()));
@@ -341,13 +327,13 @@ pub fn run_matrix_keeping(opts: &Options, keep: Option<(Cell, u64)>) -> Result<(
                 {
                     kept.push((method, det));
                 }
-                bar.inc(1);
+                bar.finish_unit(&format!("{} seed {seed}: {}", cell.slug(), method.name()));
                 out.push(rec);
             }
             Ok(out)
         })
         .collect::<Result<_>>()?;
-    bar.finish_and_clear();
+    bar.finish();
     let mut records: Vec<RunRecord> = records.into_iter().flatten().collect();
     records.sort_by(|a, b| {
         (a.result.cell(), &a.result.method, a.result.seed).cmp(&(b.result.cell(), &b.result.method, b.result.seed))
