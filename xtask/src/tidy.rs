@@ -226,10 +226,7 @@ fn check_file_docs(root: &Path, files: &[PathBuf]) -> anyhow::Result<Vec<String>
     for f in files {
         let text = fs::read_to_string(f).with_context(|| format!("cannot read {}", f.display()))?;
         if !starts_with_module_doc(&text) {
-            problems.push(format!(
-                "{}: the file must start with a `//!` doc comment",
-                relative(root, f)
-            ));
+            problems.push(format!("{}: the file must start with a `//!` doc comment", relative(root, f)));
         }
     }
     Ok(problems)
