@@ -15,8 +15,8 @@
 //! `Λ_k > A` it alarms and restarts from 0, so a persistent attack re-alarms as soon as the
 //! evidence again exceeds `A`. The step's score is the largest `Λ_k` over the `2m` tests (before
 //! resets) and the threshold is `A`. Textbook setting: `δ = 3` (the smallest main-table attack,
-//! about 3 GPS σ, docs/decisions/030-attack-model-and-planning.md) and `α = β = 0.01` (`A = 4.595`). Validation setting: a grid over
-//! `δ`, `α` and `β` maximising F1.
+//! about 3 GPS σ, docs/decisions/030-attack-model-and-planning.md) and `α = β = 0.01`
+//! (`A = 4.595`). Validation setting: a grid over `δ`, `α` and `β` maximising F1.
 
 use ekf_residue::{
     DetectError, Detector, Fit, LabelledResidues, OnlineDecision, OnlineDetector, ResidueSeries, ResidueStep,

@@ -16,7 +16,8 @@
 //! ```
 //!
 //! The Jacobians are derived for the ZYX convention of [`crate::rotation`] (the HKUST ELEC5660
-//! course's EKF formulas, which these models follow, are Z-X-Y); with `w = ω_m − b_g`, `h(q) = G(q)⁻¹ w`:
+//! course's EKF formulas, which these models follow, are Z-X-Y); with `w = ω_m − b_g`,
+//! `h(q) = G(q)⁻¹ w`:
 //!
 //! ```text
 //! ∂h/∂φ = [tθ(cφ w₁ − sφ w₂),  −sφ w₁ − cφ w₂,  (cφ w₁ − sφ w₂)/cθ]ᵀ

@@ -61,7 +61,8 @@ pub enum ExponentialCentring {
 /// How the per-sensor `σ` maps onto each shape's scale parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
 pub enum NoiseScaling {
-    /// Every shape has standard deviation `σ` (the default, docs/decisions/020): Laplace `b = σ/√2`.
+    /// Every shape has standard deviation `σ` (the default, docs/decisions/020): Laplace
+    /// `b = σ/√2`.
     #[default]
     EqualSigma,
     /// `σ` is the shape's natural scale: Laplace `b = σ`, exponential `1/κ = σ`.
