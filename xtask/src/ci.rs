@@ -1,7 +1,7 @@
-//! `cargo xtask ci`: every check CI runs, cheapest first (HOUSE_STYLE rule 20), so that local
-//! and CI runs are the same: fmt, clippy `-D warnings`, rustdoc `-D warnings`, the workspace
-//! tests (which include the tidy test), `reproduce-tables --quick`, and `cargo deny check`
-//! when cargo-deny is installed.
+//! `cargo xtask ci`: every check CI runs, cheapest first, so that local and CI runs are the
+//! same: fmt, clippy `-D warnings`, rustdoc `-D warnings`, the workspace tests (which include
+//! the tidy test), `reproduce-tables --quick`, and `cargo deny check` when cargo-deny is
+//! installed.
 
 use std::process::{Command, Stdio};
 use std::time::Instant;

@@ -1,6 +1,6 @@
 //! `cargo xtask figures`: forwards to `quadformer figures` built in release mode, which draws
 //! the ROC curves, the F1-versus-amplitude sweep, the CUSUM post-attack plot (the paper's
-//! Fig. 10) and the flight top views.
+//! Fig. 9) and the flight top views.
 
 use std::ffi::OsString;
 

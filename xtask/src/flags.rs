@@ -30,7 +30,7 @@ pub(crate) enum Cmd {
     Tidy,
 }
 
-/// Options of `reproduce-tables` (issue 6); forwarded verbatim to the eval binary.
+/// Options of `reproduce-tables`; forwarded verbatim to the eval binary.
 #[derive(Debug, Args)]
 pub(crate) struct ReproduceTables {
     /// Small data and one seed (about a minute; used by CI).

@@ -1,4 +1,4 @@
-//! Developer and user tasks for QUADFormer-rs (`cargo xtask <task>`, HOUSE_STYLE rules 19–21).
+//! Developer and user tasks for QUADFormer-rs (`cargo xtask <task>`).
 //!
 //! One binary, one module per subcommand: `reproduce-tables` and `figures` forward to the
 //! release-built `quadformer` binary of the `eval` crate (so numerics are optimised even though

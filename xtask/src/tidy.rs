@@ -1,8 +1,8 @@
-//! The tidy checks (HOUSE_STYLE rules 3, 10 and 21), run by `cargo xtask tidy` and, as a
-//! `#[test]`, by `cargo test --workspace`:
+//! The tidy checks, run by `cargo xtask tidy` and, as a `#[test]`, by `cargo test --workspace`:
 //!
 //! 1. layering: a workspace crate may depend (normal, build or dev) only on crates above it in
-//!    the DESIGN.md table ([`LAYERS`]); a member missing from the table is an error too;
+//!    the layering of docs/ARCHITECTURE.md ([`LAYERS`], the order of its Code Map); a member
+//!    missing from [`LAYERS`] is an error too;
 //! 2. candle must not be reachable, transitively and with all features on, from the crates in
 //!    [`NO_CANDLE`]; the error shows the dependency path;
 //! 3. every `.rs` file under `crates/` and `xtask/` starts with a `//!` doc comment;
@@ -22,8 +22,8 @@ use cargo_metadata::{CargoOpt, DependencyKind, Metadata, MetadataCommand, Packag
 
 use crate::project_root;
 
-/// The layers of DESIGN.md ("Layering"), top (lowest) first: a crate may depend only on crates
-/// listed before it.
+/// The layers of docs/ARCHITECTURE.md (the order of its Code Map), top (lowest) first: a crate
+/// may depend only on crates listed before it.
 pub(crate) const LAYERS: [&str; 8] = [
     "uav-dynamics",
     "ekf-residue",
@@ -35,7 +35,7 @@ pub(crate) const LAYERS: [&str; 8] = [
     "xtask",
 ];
 
-/// Crates from which no `candle-*` crate may be reachable (DESIGN.md; HOUSE_STYLE rule 3).
+/// Crates from which no `candle-*` crate may be reachable (docs/ARCHITECTURE.md, "Code Map").
 pub(crate) const NO_CANDLE: [&str; 4] = ["uav-dynamics", "ekf-residue", "attack-inject", "resilient-fusion"];
 
 /// Runs every check on the workspace; fails with the list of problems.
@@ -111,14 +111,14 @@ fn layering_problems(
     let mut problems: Vec<String> = members
         .iter()
         .filter(|m| layer(m).is_none())
-        .map(|m| format!("crate `{m}` is not in the DESIGN.md layering table (xtask/src/tidy.rs LAYERS)"))
+        .map(|m| format!("crate `{m}` is not in the docs/ARCHITECTURE.md layering table (xtask/src/tidy.rs LAYERS)"))
         .collect();
     for (from, to, kind) in edges {
         if let (Some(lf), Some(lt)) = (layer(&from), layer(&to))
             && lt >= lf
         {
             problems.push(format!(
-                "crate `{from}` has a {kind} dependency on `{to}`, which is not above it in the DESIGN.md layering \
+                "crate `{from}` has a {kind} dependency on `{to}`, which is not above it in the docs/ARCHITECTURE.md layering \
                  ({})",
                 LAYERS.join(" → ")
             ));
@@ -226,10 +226,7 @@ fn check_file_docs(root: &Path, files: &[PathBuf]) -> anyhow::Result<Vec<String>
     for f in files {
         let text = fs::read_to_string(f).with_context(|| format!("cannot read {}", f.display()))?;
         if !starts_with_module_doc(&text) {
-            problems.push(format!(
-                "{}: the file must start with a `//!` doc comment (HOUSE_STYLE rule 10)",
-                relative(root, f)
-            ));
+            problems.push(format!("{}: the file must start with a `//!` doc comment", relative(root, f)));
         }
     }
     Ok(problems)
@@ -327,7 +324,7 @@ fn check_architecture(doc: &str, members: &[(String, bool)], cited: &BTreeMap<St
 mod tests {
     use super::*;
 
-    /// The whole workspace is tidy (HOUSE_STYLE rule 3: `cargo test --workspace` runs this).
+    /// The whole workspace is tidy (`cargo test --workspace` runs this).
     #[test]
     fn tidy() {
         if let Err(e) = run() {

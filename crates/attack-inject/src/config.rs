@@ -2,10 +2,13 @@
 //! [`ValidAttackConfig`] before a plan is sampled.
 //!
 //! The attack model is the paper's FDI measurement equation eq:fdi, `y_k = g(x_k) + v_k + d_k`,
-//! applied to GPS positions in the local ENU frame (metres). Defaults come from DESIGN.md
-//! ("Conventions": Attack I/II shapes, about 12% of steps attacked, amplitudes about 3 σ to
-//! 30 m, sweep 0.5 σ to 10 σ) and `estimation-and-detectors.md` §5 (step/bias, ramp rates
-//! 0.05–2 m/s, replay delay 2 s, freeze) and §3 (GPS σ 0.5 m horizontal, PX4 EKF2_GPS_P_NOISE).
+//! applied to GPS positions in the local ENU frame (metres). Defaults come from the paper
+//! (Sec. V-B: sparse and persistent attacks of different durations and amplitudes, about 12% of
+//! steps attacked), docs/decisions/030-attack-model-and-planning.md (Attack I bursts of 0.2–3 s,
+//! Attack II intervals of 10–40 s, amplitudes about 3 σ to 30 m, sweep 0.5 σ to 10 σ), public
+//! GPS-spoofing simulators for the shapes (step/bias, ramp, replay, freeze; `gps_spoofer.py` of
+//! TDRobertson/carla-autonomous-vehicle-scripts drifts at 0.1 m/s and replays with a 2 s delay)
+//! and PX4's `EKF2_GPS_P_NOISE` for the GPS σ (0.5 m horizontal).
 
 use serde::{Deserialize, Serialize};
 
@@ -56,7 +59,7 @@ impl AttackKind {
 #[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum AmplitudeConfig {
     /// Main tables: log-uniform between `min_sigma · σ_gps` and `max_m` metres, one draw per
-    /// interval. DESIGN.md, "Conventions": "amplitudes span about 3 GPS σ to 30 m".
+    /// interval: about 3 GPS σ to 30 m (docs/decisions/030).
     Range {
         /// Lower bound in multiples of the GPS σ. Default 3.
         min_sigma: f64,
@@ -64,7 +67,7 @@ pub enum AmplitudeConfig {
         max_m: f64,
     },
     /// Amplitude sweep: every interval has amplitude `sigma_multiple · σ_gps`.
-    /// DESIGN.md, "Conventions": the sweep spans 0.5 σ to 10 σ.
+    /// The sweep spans 0.5 σ to 10 σ (docs/decisions/005-sweep-and-ablations.md).
     Fixed {
         /// Amplitude in multiples of the GPS σ.
         sigma_multiple: f64,
@@ -72,7 +75,7 @@ pub enum AmplitudeConfig {
 }
 
 impl Default for AmplitudeConfig {
-    /// `Range { min_sigma: 3, max_m: 30 }` (DESIGN.md, "Conventions").
+    /// `Range { min_sigma: 3, max_m: 30 }` (docs/decisions/030).
     fn default() -> Self {
         Self::Range { min_sigma: 3.0, max_m: 30.0 }
     }
@@ -93,10 +96,10 @@ pub enum DirectionMode {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DurationsConfig {
-    /// Attack I burst length. Default `[0.2, 3.0]` s (DESIGN.md: "fractions of a second to a few
-    /// seconds").
+    /// Attack I burst length. Default `[0.2, 3.0]` s: fractions of a second to a few seconds
+    /// (docs/decisions/030).
     pub sparse_s: [f64; 2],
-    /// Attack II interval length. Default `[10.0, 40.0]` s (DESIGN.md: "tens of seconds").
+    /// Attack II interval length. Default `[10.0, 40.0]` s: tens of seconds (docs/decisions/030).
     pub persistent_s: [f64; 2],
     /// Replay interval length. Default `[3.0, 15.0]` s (choice between the two FDI scales).
     pub replay_s: [f64; 2],
@@ -146,13 +149,12 @@ pub struct AttackConfig {
     /// Which attack.
     pub kind: AttackKind,
     /// Target fraction of GPS steps (= residue steps with a GPS fix) under attack.
-    /// Default 0.12 (paper Sec. "Attack Scenario": "approximately 12% of the time steps are under
-    /// attack").
+    /// Default 0.12 (paper Sec. V-B: "approximately 12% of the time steps are under attack").
     #[serde(default = "default_attacked_fraction")]
     pub attacked_fraction: f64,
     /// GPS position noise standard deviation in metres, the unit of amplitudes.
     /// Default 0.5: PX4 EKF2_GPS_P_NOISE, the horizontal σ of the simulator's default
-    /// `uav_dynamics::sim::SimConfig::gps_sigma_m` (estimation-and-detectors.md §3).
+    /// `uav_dynamics::sim::SimConfig::gps_sigma_m` (docs/sensors.md).
     #[serde(default = "default_gps_sigma_m")]
     pub gps_sigma_m: f64,
     /// Amplitude distribution. Default `Range { min_sigma: 3, max_m: 30 }`.
@@ -165,13 +167,13 @@ pub struct AttackConfig {
     #[serde(default)]
     pub durations: DurationsConfig,
     /// Probability that an Attack II interval is a ramp (drift) rather than a constant bias.
-    /// Default 0.5 (both shapes equally, DESIGN.md "constant bias or slow ramp").
+    /// Default 0.5 (constant bias or slow ramp equally often, docs/decisions/030).
     #[serde(default = "default_ramp_probability")]
     pub ramp_probability: f64,
     /// Ramp slope range `[min, max]` in m/s, drawn log-uniformly per ramp interval; the ramp's
     /// end offset is then `slope · duration` along the drawn direction. `None` (default): the
-    /// end offset is drawn from `amplitude` like a bias. Drift spoofing is slow: PX4 issue
-    /// #27340 reports a ~5 m/s drift; estimation-and-detectors §5 gives 0.05–2 m/s.
+    /// end offset is drawn from `amplitude` like a bias. Drift spoofing is slow: PX4/PX4-Autopilot
+    /// issue #27340 reports a ~5 m/s drift; public spoofing simulators drift at 0.1–1 m/s.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ramp_slope_mps: Option<[f64; 2]>,
     /// Oscillation frequency range `[min, max]` in Hz of [`AttackKind::Oscillating`], drawn
@@ -179,7 +181,7 @@ pub struct AttackConfig {
     #[serde(default = "default_oscillation_hz", skip_serializing_if = "is_default_oscillation_hz")]
     pub oscillation_hz: [f64; 2],
     /// Replay delay range `[min, max]` in seconds. Default `[1.0, 5.0]` around the 2 s of
-    /// `gps_spoofer.py` (estimation-and-detectors.md §5).
+    /// `gps_spoofer.py` (TDRobertson/carla-autonomous-vehicle-scripts).
     #[serde(default = "default_replay_delay_s")]
     pub replay_delay_s: [f64; 2],
     /// Attack-free time at the start of the window, seconds, so the EKF has converged.

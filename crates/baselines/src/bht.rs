@@ -1,5 +1,5 @@
 //! Binary hypothesis test (BHT), the "ellipsoid" baseline of Muniraj & Farhood (ICUAS 2017) in
-//! the paper's tables (sec:experiments: "the BHT assumes that in the absence of attacks, the
+//! the paper's tables (Sec. V-E: "the BHT assumes that in the absence of attacks, the
 //! residue will predominantly lie within an ellipsoid").
 //!
 //! Exact variant (the source's is not public; docs/decisions/050-statistical-baseline-variants.md):
@@ -31,11 +31,12 @@ use crate::stats::chi2_quantile;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BhtConfig {
-    /// Textbook or validation-chosen `(N, γ)`. Default [`Tuning::ValidationF1`] (DESIGN.md).
+    /// Textbook or validation-chosen `(N, γ)`. Default [`Tuning::ValidationF1`] (decision 050).
     pub tuning: Tuning,
-    /// Textbook sample size `N`. Default 1 (the single-step ellipsoid, sec:experiments).
+    /// Textbook sample size `N`. Default 1 (the single-step ellipsoid of the paper's Sec. V-E).
     pub n_samples: usize,
-    /// Design false-alarm rate of the textbook `γ`. Default 0.01 (issue 5).
+    /// Design false-alarm rate of the textbook `γ`. Default 0.01, the 1 % design of every
+    /// textbook setting (decision 050).
     pub far: f64,
     /// Validation grid of `N`. Default `[1, 2, 5, 10, 20]` (up to 2 s at 10 Hz).
     pub n_grid: Vec<usize>,

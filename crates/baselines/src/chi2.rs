@@ -1,5 +1,5 @@
 //! Chi-squared detector on the normalised innovation squared (Murguia & Ruths, CCA 2016; paper
-//! sec:related_work): alarm at step `k` iff `z_k = r_kᵀ S_k⁻¹ r_k > α`.
+//! Sec. II): alarm at step `k` iff `z_k = r_kᵀ S_k⁻¹ r_k > α`.
 //!
 //! Under H0 and Gaussian residues `z_k ~ χ²_m`, so the textbook threshold is the `1 − A*`
 //! quantile of `χ²_m` (`A*` the design false-alarm rate, 1 % by default: `α = 16.812` for the
@@ -18,9 +18,10 @@ use crate::stats::chi2_quantile;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Chi2Config {
-    /// Textbook or validation-chosen threshold. Default [`Tuning::ValidationF1`] (DESIGN.md).
+    /// Textbook or validation-chosen threshold. Default [`Tuning::ValidationF1`] (decision 050).
     pub tuning: Tuning,
-    /// Design false-alarm rate per step of the textbook threshold. Default 0.01 (issue 5).
+    /// Design false-alarm rate per step of the textbook threshold. Default 0.01, the 1 % design of
+    /// every textbook setting (docs/decisions/050-statistical-baseline-variants.md).
     pub far: f64,
 }
 

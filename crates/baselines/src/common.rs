@@ -11,7 +11,7 @@ pub enum Tuning {
     /// Gaussian residues, PX4's 5σ gate); the validation split is not looked at.
     Textbook,
     /// Thresholds and tunable parameters chosen on the validation split to maximise per-step
-    /// F1 (DESIGN.md, "Evaluation protocol"). Default, as in the paper's tables.
+    /// F1 (docs/decisions/001-validation-split-labels.md). Default, as in the paper's tables.
     #[default]
     ValidationF1,
 }

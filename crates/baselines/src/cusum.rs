@@ -1,5 +1,5 @@
 //! CUSUM detector on the NIS (Murguia & Ruths, "CUSUM and chi-squared attack detection of
-//! compromised sensors", CCA 2016; the paper's CUSUM baseline and its Fig. 10,
+//! compromised sensors", CCA 2016; the paper's CUSUM baseline and its Fig. 9,
 //! fig:CUSUM_3_plots).
 //!
 //! With `z_k = r_kᵀ S_k⁻¹ r_k`:
@@ -32,15 +32,16 @@ use crate::stats::{chi2_cdf, cusum_tau_for_far};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CusumConfig {
-    /// Textbook or validation-chosen `(b, τ)`. Default [`Tuning::ValidationF1`] (DESIGN.md).
+    /// Textbook or validation-chosen `(b, τ)`. Default [`Tuning::ValidationF1`] (decision 050).
     pub tuning: Tuning,
     /// Textbook bias as a multiple of `m = E[z_k]`. Default 1.5 (our choice within Murguia &
     /// Ruths' `b > m` rule; docs/baselines.md).
     pub b_over_m: f64,
-    /// Design false-alarm rate per step of the textbook `τ`. Default 0.01 (issue 5).
+    /// Design false-alarm rate per step of the textbook `τ`. Default 0.01, the 1 % design of every
+    /// textbook setting (decision 050).
     pub far: f64,
-    /// Bins of the Markov chain on `(0, τ]`. Default 150 (matches Monte Carlo to 2 %,
-    /// estimation-and-detectors.md §1.2).
+    /// Bins of the Markov chain on `(0, τ]`. Default 150 (matches a Monte Carlo simulation of
+    /// the recursion to 2 %; tested in `stats`).
     pub n_bins: usize,
     /// Validation grid of `b` as multiples of the clean mean NIS. Default
     /// `[1.05, 1.2, 1.5, 2, 3, 5, 10]` (from "barely negative drift" to chi-squared-like).

@@ -1,5 +1,5 @@
 //! Windowed residue features for the SVM baseline (the paper feeds every learning method
-//! residue windows, sec:experiments "to ensure fair comparisons").
+//! residue windows, Sec. V-E, "to ensure fair comparisons").
 //!
 //! For step `k` the window is the last `w` steps `k−w+1..=k` (fewer at the start of a flight),
 //! so the features are causal and a streaming detector needs only the last `w` steps. With the

@@ -1,5 +1,5 @@
-//! Comparison detectors of the paper's Tables I and II (tab:model1, tab:model2) as
-//! [`ekf_residue::Detector`]s, plus the innovation gate a PX4 user already has.
+//! Comparison detectors of the paper's Tables I and II as [`ekf_residue::Detector`]s, plus the
+//! innovation gate a PX4 user already has.
 //!
 //! This crate sits between `quadformer-model` and `resilient-fusion`: it reads residue series
 //! (`ekf-residue`) and shares windowing and training with `quadformer-model`; it knows nothing

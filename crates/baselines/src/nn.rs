@@ -1,6 +1,6 @@
 //! 1-D CNN and LSTM per-step classifiers in candle (the CNN and LSTM baselines of Wu et al.
-//! 2023 and Wang et al. 2020 in the paper's tables, fed residue windows as the paper does,
-//! sec:experiments).
+//! 2023 and Wang et al. 2020 in the paper's tables, fed residue windows as the paper does in
+//! Sec. V-E).
 //!
 //! Both share QUADFormer's data path and loop (`quadformer_model`): per-channel
 //! [`Normaliser`] fitted on the labelled training flights, [`Windows`] of `l` steps × `m`
@@ -10,16 +10,16 @@
 //! mean over the covering windows). The loss is the masked per-step binary cross-entropy with
 //! logits; the alarm threshold on the stitched logit is chosen on the validation split (best
 //! F1). They train on the labelled flights only (the same subset as QUADFormer's
-//! classification head, DESIGN.md "Semi-supervision").
+//! classification head, docs/decisions/001-validation-split-labels.md).
 //!
 //! Architectures (`b × l × m` in, `b × l` logits out):
 //! - CNN: `Conv1d(m→c, k) → ReLU → Conv1d(c→c, k) → ReLU → Conv1d(c→1, 1)`, with `c = 32`,
-//!   `k = 5` (the 2-layer Conv1d(32, k5) probe of shared/reference/rust-stack.md §3). The
+//!   `k = 5` (a small choice; the paper gives no architecture, decision 052). The
 //!   convolutions are causal (`k − 1` zeros on the left only), so a step's logit depends on
 //!   the last `2k − 1` steps and the streaming detector (last step of the latest window) agrees
 //!   with the stitched batch score except where a window start cuts that history.
 //! - LSTM: one forward `LSTM(m→h)` over the window ([`crate::lstm`]), `h = 64`, then
-//!   `Linear(h→1)` on every hidden state (rust-stack.md §3 LSTM probe). Only the past inside the
+//!   `Linear(h→1)` on every hidden state (decision 052). Only the past inside the
 //!   window is seen.
 
 use candle_core::{D, DType, Device, Module, Tensor};
@@ -110,9 +110,9 @@ pub struct NeuralConfig {
     /// (docs/decisions/053-baseline-training-budgets.md).
     pub train: TrainConfig,
     /// Channels of the CNN's hidden layers, or the LSTM's hidden size. Default 32 for the CNN,
-    /// 64 for the LSTM (rust-stack.md §3 probes).
+    /// 64 for the LSTM (docs/decisions/052-cnn-lstm-baselines.md).
     pub hidden: usize,
-    /// CNN kernel size (unused by the LSTM). Default 5 (rust-stack.md §3 probe).
+    /// CNN kernel size (unused by the LSTM). Default 5 (docs/decisions/052).
     pub kernel: usize,
     /// Weight of attacked steps in the BCE (class imbalance), as QUADFormer's
     /// `loss.pos_weight`. Default 1.

@@ -1,6 +1,6 @@
 //! PX4-style GNSS innovation gate (PX4 EKF2: `EKF/ekf.h` `updateAidSourceStatus`,
-//! `aid_sources/gnss/gps_control.cpp` `controlGnssPosFusion`; facts in
-//! `shared/reference/estimation-and-detectors.md` §2.1): the detector a PX4 user already has.
+//! `aid_sources/gnss/gps_control.cpp` `controlGnssPosFusion`, in PX4/PX4-Autopilot
+//! `src/modules/ekf2`): the detector a PX4 user already has.
 //!
 //! Per GPS axis `i` of step `k`, with the innovation `ν_i` and its variance `(S_k)_ii`:
 //!
@@ -34,7 +34,7 @@ use crate::error::{BaselineError, Result, step_dim_error};
 #[serde(deny_unknown_fields, default)]
 pub struct Px4GateConfig {
     /// Textbook (PX4 default) or validation-chosen gate. Default [`Tuning::ValidationF1`]
-    /// (DESIGN.md).
+    /// (decision 050).
     pub tuning: Tuning,
     /// Gate `γ` in standard deviations. Default 5 (PX4 `EKF2_GPS_P_GATE`, params_gnss.yaml).
     pub gamma: f64,

@@ -15,8 +15,8 @@
 //! `Λ_k > A` it alarms and restarts from 0, so a persistent attack re-alarms as soon as the
 //! evidence again exceeds `A`. The step's score is the largest `Λ_k` over the `2m` tests (before
 //! resets) and the threshold is `A`. Textbook setting: `δ = 3` (the smallest main-table attack,
-//! about 3 GPS σ, DESIGN.md) and `α = β = 0.01` (`A = 4.595`). Validation setting: a grid over
-//! `δ`, `α` and `β` maximising F1.
+//! about 3 GPS σ, docs/decisions/030-attack-model-and-planning.md) and `α = β = 0.01`
+//! (`A = 4.595`). Validation setting: a grid over `δ`, `α` and `β` maximising F1.
 
 use ekf_residue::{
     DetectError, Detector, Fit, LabelledResidues, OnlineDecision, OnlineDetector, ResidueSeries, ResidueStep,
@@ -30,12 +30,13 @@ use crate::error::{BaselineError, Result, step_dim_error};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SprtConfig {
-    /// Textbook or validation-chosen `(δ, α, β)`. Default [`Tuning::ValidationF1`] (DESIGN.md).
+    /// Textbook or validation-chosen `(δ, α, β)`. Default [`Tuning::ValidationF1`] (decision 050).
     pub tuning: Tuning,
-    /// Textbook design shift in standard deviations. Default 3 (DESIGN.md, smallest attack
-    /// amplitude of the main tables).
+    /// Textbook design shift in standard deviations. Default 3 (the smallest attack amplitude of
+    /// the main tables, docs/decisions/030).
     pub delta: f64,
-    /// Textbook false-alarm probability `α`. Default 0.01 (issue 5).
+    /// Textbook false-alarm probability `α`. Default 0.01, the 1 % design of every textbook
+    /// setting (decision 050).
     pub alpha: f64,
     /// Textbook miss probability `β`. Default 0.01 (symmetric Wald design).
     pub beta: f64,

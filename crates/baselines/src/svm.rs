@@ -1,6 +1,6 @@
 //! Support vector machine with an RBF kernel on windowed residue features (the SVM baseline of
 //! Shafique et al. 2021 and Khoei et al. 2022 in the paper's tables, fed residue windows as the
-//! paper does, sec:experiments).
+//! paper does in Sec. V-E).
 //!
 //! Decision function of the fitted machine, with support vectors `x_j`, signed coefficients
 //! `w_j = α_j y_j`, bias `b` and kernel width `γ`:
@@ -36,7 +36,7 @@ use crate::features::{n_features, window_features};
 #[serde(deny_unknown_fields, default)]
 pub struct SvmConfig {
     /// Feature window `w` in steps. Default 10 (1 s of 10 Hz GPS residues, the span of a short
-    /// Attack I burst, DESIGN.md).
+    /// Attack I burst, docs/decisions/030-attack-model-and-planning.md).
     pub window: usize,
     /// Most training samples given to the solver. Default 500: at paper scale it reached a
     /// validation F1 within 0.01 of 1,000 samples at a quarter of the cost, and 2,000 samples

@@ -5,7 +5,7 @@
 //! variance; σ_att = 0.02 rad) and i.i.d. residues of a chosen shape scaled to that σ. An attack
 //! adds a GPS bias to the residues over `[start_s, end_s)` and labels those steps.
 //!
-//! The absorbed-bias model (used for the paper's Fig. 10 effect, fig:CUSUM_3_plots) stands in
+//! The absorbed-bias model (used for the paper's Fig. 9 effect, fig:CUSUM_3_plots) stands in
 //! for a filter that fuses the spoofed GPS: during the attack the residue offset decays as
 //! `B·e^{−(t−t₀)/τ_a}` because the estimate moves towards the spoofed position, and after the
 //! attack ends the estimate is off by `B(1 − e^{−(t₁−t₀)/τ_a})`, so the residue carries the

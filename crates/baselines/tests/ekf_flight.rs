@@ -1,6 +1,6 @@
 //! The statistical baselines on residues of the real Model I EKF (`ekf_residue`) over a
 //! simulated eight-shape flight (`uav_dynamics`), with a 20 m GPS bias held from 20 s to 40 s
-//! and fused by the filter, which then absorbs it: the paper's Fig. 10 (fig:CUSUM_3_plots)
+//! and fused by the filter, which then absorbs it: the paper's Fig. 9 (fig:CUSUM_3_plots)
 //! setting without the synthetic stand-in.
 
 use baselines::{BhtConfig, Chi2Config, CusumConfig, Px4GateConfig, SprtConfig, Tuning};

@@ -108,7 +108,7 @@ fn fitted_on_one_channel_set_rejects_another() -> TestResult {
 
 #[test]
 fn cusum_alarms_persist_after_a_constant_attack_ends_fig10() -> TestResult {
-    // Synthetic stand-in for the paper's Fig. 10 (fig:CUSUM_3_plots): the filter fuses a 20 m
+    // Synthetic stand-in for the paper's Fig. 9 (fig:CUSUM_3_plots): the filter fuses a 20 m
     // constant spoof for 20 s and absorbs it with a 5 s time constant, so after the attack
     // ends the residue carries the opposite offset on steps labelled clean.
     let attack = SyntheticAttack { start_s: 30.0, end_s: 50.0, bias_m: [20.0, 0.0, 0.0], absorb_tau_s: Some(5.0) };

@@ -16,8 +16,8 @@ use uav_dynamics::sensors::SensorStreams;
 
 use crate::error::FilterError;
 
-/// Default grouping tolerance, seconds: a fifth of the 200 Hz IMU period (DESIGN.md "Default
-/// rates"), far below the 0.1 s spacing of the 10 Hz measurement streams.
+/// Default grouping tolerance, seconds: a fifth of the 200 Hz IMU period (docs/decisions/020),
+/// far below the 0.1 s spacing of the 10 Hz measurement streams.
 pub const DEFAULT_TOLERANCE_S: f64 = 1e-3;
 
 /// Indices of the samples, one per stream at most, that form one measurement time.

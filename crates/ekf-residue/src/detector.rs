@@ -1,10 +1,10 @@
-//! The detector interface every residue consumer implements (HOUSE_STYLE rule 4), and the
-//! shared validation-split threshold choice.
+//! The detector interface every residue consumer implements, and the shared validation-split
+//! threshold choice (docs/decisions/002-residue-series-and-detector-traits.md).
 //!
 //! Training is split from scoring in linfa's style: a [`Fit`] value holds hyper-parameters and
 //! turns a training and a validation split into a fitted [`Detector`]; only fitted detectors can
 //! score. A detector's decision threshold is chosen on the validation split inside `fit`, never
-//! on test data (DESIGN.md, "Evaluation protocol").
+//! on test data (docs/decisions/001-validation-split-labels.md).
 
 use crate::error::DetectError;
 use crate::series::{LabelledResidues, ResidueSeries, ResidueStep};

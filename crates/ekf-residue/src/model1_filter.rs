@@ -29,8 +29,8 @@ pub type Cov15 = SMatrix<f64, 15, 15>;
 
 /// IMU noise figures used to build the process noise `Q`.
 ///
-/// Defaults: the EuRoC VI-sensor ADIS16448 data sheet values at 200 Hz (reference notes §3:
-/// gyro noise density 1.6968e-4 rad/s/√Hz → 2.4e-3 rad/s per sample, accelerometer 2.0e-3
+/// Defaults: the EuRoC VI-sensor ADIS16448 values of the dataset's `imu0/sensor.yaml` at 200 Hz
+/// (gyro noise density 1.6968e-4 rad/s/√Hz → 2.4e-3 rad/s per sample, accelerometer 2.0e-3
 /// m/s²/√Hz → 0.028 m/s² per sample, random walks 1.9393e-5 rad/s²/√Hz and 3.0e-3 m/s³/√Hz).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -76,7 +76,8 @@ pub enum Family {
     Sparse,
     /// Attack II: long constant biases.
     Bias,
-    /// Attack II drift: a ramp of 0.1–5 m/s from zero offset (PX4 issue #27340 reports 5 m/s).
+    /// Attack II drift: a ramp of 0.1–5 m/s from zero offset (PX4/PX4-Autopilot issue #27340
+    /// reports 5 m/s).
     Ramp,
     /// Held out: `A·sin(2π f t)`, f in 0.1–0.3 Hz.
     Oscillating,

@@ -1,8 +1,8 @@
 //! Labelled residue datasets: simulate flights → inject GPS attacks (eq:fdi) → run the EKF
 //! (alg:alg1) → per-step labelled residues, split by flight into train / validation / test,
-//! cached on disk (DESIGN.md "Conventions" and "Evaluation protocol"; paper Sec. "Attack
-//! Scenario and Training Details": 83,700 training and 18,700 test residue steps, about 12%
-//! attacked).
+//! cached on disk (docs/decisions/031-dataset-splits-seeds-and-cache.md; paper Sec. V-B,
+//! "Attack Scenario and Training Details": 83,700 training and 18,700 test residue steps, about
+//! 12% attacked).
 //!
 //! One dataset is one cell of the experiment matrix: a model (`FilterConfig::model`), a noise
 //! shape (`SimConfig::noise`) and an attack (`AttackConfig::kind`). Every flight flies its own
@@ -202,8 +202,8 @@ impl fmt::Display for Split {
 pub struct SplitSteps {
     /// Training steps. Paper: 83,700.
     pub train: usize,
-    /// Validation steps. Default 18,700 (same size as the test split; DESIGN.md asks for a
-    /// validation split, the paper has none).
+    /// Validation steps. Default 18,700 (same size as the test split; thresholds and early
+    /// stopping need a validation split, the paper has none; decision 001).
     pub valid: usize,
     /// Test steps. Paper: 18,700.
     pub test: usize,
@@ -265,7 +265,7 @@ pub struct DatasetConfig {
     /// whole flights and the 1% ablation one flight (decision 031).
     pub flight_duration_s: f64,
     /// Fraction of training flights whose labels are kept (others `None`). Default 0.1
-    /// (DESIGN.md "Semi-supervision"). At least one flight when non-zero. Not part of the
+    /// (decision 031). At least one flight when non-zero. Not part of the
     /// cache key: labels are hidden after loading.
     pub labelled_fraction: f64,
     /// Seed of the whole dataset.

@@ -1,8 +1,8 @@
-//! Evaluation metrics of a detector on labelled residue steps (DESIGN.md, "Evaluation
-//! protocol"): per-step precision, recall and F1 without point adjustment (paper eq:precision,
-//! eq:recall, eq:F1, counted by [`ekf_residue::Confusion`]), the ROC curve and its area, PR AUC
-//! (average precision), detection delay per attack interval, false alarms per minute of clean
-//! flight, and mean ± sample standard deviation over seeds.
+//! Evaluation metrics of a detector on labelled residue steps
+//! (docs/decisions/060-metric-definitions.md): per-step precision, recall and F1 without point
+//! adjustment (paper eq:precision, eq:recall, eq:F1, counted by [`ekf_residue::Confusion`]), the
+//! ROC curve and its area, PR AUC (average precision), detection delay per attack interval,
+//! false alarms per minute of clean flight, and mean ± sample standard deviation over seeds.
 //!
 //! Inputs are plain slices, one entry per residue step of one flight: time stamps `t` in
 //! seconds (strictly increasing), anomaly scores (higher = more anomalous), per-step alarms and

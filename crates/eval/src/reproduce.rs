@@ -69,8 +69,8 @@ pub enum ReproduceError {
 /// Result alias of this module.
 pub type Result<T, E = ReproduceError> = std::result::Result<T, E>;
 
-/// Which residue channels the Model II cells use (DESIGN.md: "say which channels an experiment
-/// used"; docs/decisions/003-model2-channels.md).
+/// Which residue channels the Model II cells use; every report says which
+/// (docs/decisions/003-model2-channels.md).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Model2Channels {
@@ -90,14 +90,14 @@ pub struct MatrixConfig {
     pub methods: MethodConfigs,
     /// Residue steps per split. Default: paper scale (83,700 / 18,700 / 18,700).
     pub steps: SplitSteps,
-    /// Fraction of training flights with labels. Default 0.1 (DESIGN.md, "Semi-supervision").
+    /// Fraction of training flights with labels. Default 0.1 (docs/decisions/031).
     pub labelled_fraction: f64,
     /// Model II channels. Default VO + GPS.
     pub model2_channels: Model2Channels,
     /// Amplitudes of the F1-versus-amplitude sweep in GPS σ; empty switches the sweep off.
-    /// Default 0.5 to 10 σ (DESIGN.md).
+    /// Default 0.5 to 10 σ (docs/decisions/005-sweep-and-ablations.md).
     pub sweep_sigma: Vec<f64>,
-    /// Label fractions of the semi-supervision ablation. Default 1%, 10%, 100% (DESIGN.md).
+    /// Label fractions of the semi-supervision ablation. Default 1%, 10%, 100% (decision 005).
     pub ablation_fractions: Vec<f64>,
 }
 
@@ -712,7 +712,7 @@ fn write_report(
     for cell in cells {
         let _ = writeln!(s, "- {cell}: [PNG](figures/roc-{0}.png), [SVG](figures/roc-{0}.svg)", cell.slug());
     }
-    let _ = writeln!(s, "\n## CUSUM after a persistent attack (the paper's Fig. 10)\n");
+    let _ = writeln!(s, "\n## CUSUM after a persistent attack (the paper's Fig. 9)\n");
     let _ = writeln!(s, "![CUSUM](figures/cusum-post-attack.png)\n\n{cusum_note}\n");
     let _ = writeln!(s, "## F1 against attack amplitude\n");
     let _ = writeln!(s, "![sweep](figures/f1-vs-amplitude.png)\n");

@@ -1,8 +1,8 @@
 //! The experiment matrix runner: fits every method of Tables I and II on a cell's training and
 //! validation splits, scores the test split, and turns the outcome into a [`RunResult`].
 //!
-//! Protocol (DESIGN.md, "Evaluation protocol"): each method's thresholds and hyper-parameters
-//! are chosen inside its [`Fit::fit`] on the validation split; the test split is scored once,
+//! Protocol (docs/decisions/001-validation-split-labels.md): each method's thresholds and
+//! hyper-parameters are chosen inside its [`Fit::fit`] on the validation split; the test split is scored once,
 //! per step, without point adjustment. Finished `(cell, method, seed)` runs are cached as JSON
 //! next to the results, keyed by a hash of everything that determines them, so an interrupted
 //! run resumes and a changed configuration is recomputed.

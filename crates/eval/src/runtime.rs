@@ -27,7 +27,7 @@ pub struct CpuRuntime {
 /// unless the user set either variable, builds rayon's global pool with one thread per
 /// available core for parallel units of work, and tunes glibc's allocator. Numbers do not
 /// depend on any of it: candle's CPU results are bit-identical across thread counts
-/// (shared/reference/rust-stack.md §3).
+/// (docs/decisions/064-parallel-runs-and-candle-threads.md).
 ///
 /// # Safety
 /// Must be called at the start of `main`, before the program starts any thread: it writes the

@@ -781,13 +781,6 @@ fn roman(model: UavModel) -> &'static str {
     }
 }
 
-fn paper_label(model: UavModel) -> &'static str {
-    match model {
-        UavModel::I => "tab:comprehensive_analysis1",
-        UavModel::II => "tab:comprehensive_analysis2",
-    }
-}
-
 const MD_HEADER: &str = "| Group | Method | Exp A-I P | Exp A-I R | Exp A-I F1 | Exp A-II P | Exp A-II R | Exp A-II F1 \
      | Lap A-I P | Lap A-I R | Lap A-I F1 | Lap A-II P | Lap A-II R | Lap A-II F1 |\n\
      |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
@@ -832,8 +825,7 @@ pub fn table_markdown(results: &[RunResult], model: UavModel) -> Result<String> 
         }
         s.push('\n');
     }
-    let _ =
-        writeln!(s, "\n### Paper's numbers (Table {n} of the paper, `{}`), for comparison only\n", paper_label(model));
+    let _ = writeln!(s, "\n### Paper's numbers (Table {n} of the paper), for comparison only\n");
     let _ = writeln!(s, "Published values, copied from the paper; not produced by this code.\n");
     s.push_str(MD_HEADER);
     let mut prev_group = None;
@@ -955,10 +947,7 @@ pub fn table_latex(results: &[RunResult], model: UavModel) -> Result<String> {
     tex_rows(&mut s, &rows);
     tex_tail(&mut s);
     s.push('\n');
-    let caption = format!(
-        "Published numbers of the paper for Model {n} (its \\texttt{{{}}}), for comparison only.",
-        tex_escape(paper_label(model))
-    );
+    let caption = format!("Published numbers of the paper for Model {n} (its Table {n}), for comparison only.");
     tex_head(&mut s, model, &caption, &format!("tab:paper_model{}", arabic(model)));
     let rows: Vec<(MethodGroup, String, Vec<String>)> = paper_rows(model)
         .iter()

@@ -55,7 +55,7 @@ fn both_models_run_and_labels_align() {
         // Before the first attack the filter is consistent (mean NIS near the dimension; about
         // 60 steps, so a loose band), and attacked steps stand out against that. Clean steps
         // after an attack are not used: the filter absorbs part of an attack and stays off for
-        // a while (the paper's Fig. 10 effect).
+        // a while (the paper's Fig. 9 effect).
         let first = labels.iter().position(|&l| l).unwrap();
         let mean = |z: &[f64]| z.iter().sum::<f64>() / z.len() as f64;
         let clean = mean(&series.nis()[..first]);

@@ -93,7 +93,7 @@ fn detection_delay_per_interval() {
 fn false_alarm_events_over_clean_time() {
     // 1 s steps. Clean steps: 0, 1, 2, 5, 6, 7 (6 s). Alarm runs on clean steps: {1, 2} and {5}
     // (the alarm that starts inside the attack at step 4 and goes on at step 5 is a false
-    // alarm event once the attack is over, as CUSUM's post-attack alarms in Fig. 10), and {7}.
+    // alarm event once the attack is over, as CUSUM's post-attack alarms in Fig. 9), and {7}.
     let t: Vec<f64> = (0..8).map(f64::from).collect();
     let labels = [false, false, false, true, true, false, false, false];
     let alarms = [false, true, true, false, true, true, false, true];

@@ -1,6 +1,6 @@
 //! End-to-end check of `reproduce-tables` on a micro configuration: every output is written,
 //! Tables I and II have the paper's shape, every rate is finite and in [0, 1], and the same seed
-//! gives a byte-identical `results.csv` (issue 6, "Checks").
+//! gives a byte-identical `results.csv` (docs/decisions/061-results-files.md).
 #![allow(clippy::unwrap_used)]
 
 use std::path::Path;

@@ -68,7 +68,7 @@ fn table1_markdown_snapshot() {
         | Ours | QUADFormer | 0.94 ± 0.01 | 0.92 ± 0.01 | 0.93 ± 0.01 | – | – | – | – | – | – | 0.90 ± 0.01 | 0.88 ± 0.01 | 0.89 ± 0.01 |
         | Extra (not in the paper) | PX4 gate (5 sd) | 0.52 ± 0.01 | 0.50 ± 0.01 | 0.51 ± 0.01 | – | – | – | – | – | – | – | – | – |
 
-        ### Paper's numbers (Table I of the paper, `tab:comprehensive_analysis1`), for comparison only
+        ### Paper's numbers (Table I of the paper), for comparison only
 
         Published values, copied from the paper; not produced by this code.
 
@@ -127,7 +127,7 @@ fn table1_latex_snapshot() {
 
         \begin{table*}[h]
         \centering
-        \caption{Published numbers of the paper for Model I (its \texttt{tab:comprehensive\_analysis1}), for comparison only.}
+        \caption{Published numbers of the paper for Model I (its Table I), for comparison only.}
         \label{tab:paper_model1}
         \bgroup
         \renewcommand{\arraystretch}{1.5}

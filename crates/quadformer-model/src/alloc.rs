@@ -3,8 +3,8 @@
 //! candle allocates and frees a few megabytes per attention tensor on every step; with glibc's
 //! default thresholds each such buffer is `mmap`ed, zeroed and `munmap`ed again, so much of a
 //! training step is spent in page faults. Raising the mmap threshold to 32 MiB and the trim
-//! threshold to 1 GiB keeps those buffers on the heap (measured 1.6× faster training,
-//! shared/reference/rust-stack.md §3).
+//! threshold to 1 GiB keeps those buffers on the heap (measured 1.6× faster training steps with
+//! candle 0.11 on a 2-core CPU).
 
 /// `mallopt` threshold above which glibc serves allocations with `mmap`: 32 MiB.
 pub const MMAP_THRESHOLD_BYTES: i32 = 32 * 1024 * 1024;

@@ -6,8 +6,9 @@
 //! Composed from candle's element-wise ops the last three took about half of a training step
 //! (`examples/profile.rs train`, batch 32): the composed GELU backward alone is nine passes over
 //! every `b·l × d_ff` activation, each allocating its result, and candle's fused softmax and
-//! layer-norm kernels have no backward at all (shared/reference/rust-stack.md §4). Each op
-//! here makes one pass forward and one backward, and works in training and inference alike.
+//! layer-norm kernels have no backward at all (candle 0.11; for the layer norm see
+//! huggingface/candle issues #3011 and #3752). Each op here makes one pass forward and one
+//! backward, and works in training and inference alike.
 //!
 //! Gradients (per row, `g` the incoming gradient):
 //! - bias `y = x + b` on every row: `∂/∂x = g`, `∂/∂b = Σ_rows g` (a broadcast's gradient in

@@ -1,6 +1,7 @@
 //! Seeded initialisation of every variable of a [`VarMap`].
 //!
-//! candle's CPU random generator cannot be seeded (shared/reference/rust-stack.md §4.3), so a
+//! candle's CPU random generator cannot be seeded (in candle 0.11 `Device::Cpu.set_seed` returns
+//! an error, and `Tensor::randn` and the `Init` initialisers draw from `rand::rng()`), so a
 //! model is built with any initialiser and then every variable is overwritten here from a
 //! seeded [`StdRng`]. Variables are visited in sorted name order, so the result depends only on
 //! the names, shapes and seed.

@@ -13,10 +13,11 @@
 //! for `h > 1` (DCM; switchable off = own keys); `T_{ij} = exp(−γ_i |j−i|^p) / Σ_k …` with a
 //! learnable width `γ` per layer, head and position (TPC; switchable off = the Anomaly
 //! Transformer's Gaussian prior with an input-dependent width). The layer norm, softmax and GELU
-//! are the kernels of [`crate::fused`], which have backward passes (candle's fused `LayerNorm`
-//! and `softmax_last_dim` have none, shared/reference/rust-stack.md §4). The exponent of the
-//! prior is clamped at [`PRIOR_EXP_FLOOR`] so that far-apart steps never produce subnormal
-//! results (slow on this CPU) while their weight stays negligible.
+//! are the kernels of [`crate::fused`], which have backward passes (candle 0.11's fused
+//! `LayerNorm` and `softmax_last_dim` have none; for the layer norm see huggingface/candle issues
+//! #3011 and #3752). The exponent of the prior is clamped at [`PRIOR_EXP_FLOOR`] so that
+//! far-apart steps never produce subnormal results (slow on this CPU) while their weight stays
+//! negligible.
 //!
 //! Min-max with stop-gradient (Anomaly Transformer `solver.py`): the min phase uses
 //! `TCD(T, sg(C))`, so its discrepancy term only moves the prior (`γ`); the max phase uses
@@ -74,7 +75,8 @@ pub struct NetConfig {
     pub d_ff: usize,
     /// Hidden width of the classification head. Default 32 (decision 040).
     pub d_class: usize,
-    /// TPC distance exponent `p` (eq:TPC). Default 2 (issue 4).
+    /// TPC distance exponent `p` (eq:TPC). Default 2, a Gaussian-shaped kernel like the Anomaly
+    /// Transformer's prior (decision 040).
     pub p: f64,
     /// Initial TPC width `γ`. Default 0.1: with `p = 2` a Gaussian of about 2.2 steps standard
     /// deviation, the order of the Anomaly Transformer's initial width (decision 040).
@@ -208,7 +210,8 @@ pub enum MinMax {
     /// One AdamW step on the sum of both phase losses (Anomaly Transformer's
     /// `loss1.backward(); loss2.backward(); step()`).
     Summed,
-    /// A max-phase step, then a min-phase step on a fresh forward pass (thuml issue #70).
+    /// A max-phase step, then a min-phase step on a fresh forward pass (thuml/Anomaly-Transformer
+    /// issue #70).
     Alternating,
 }
 

@@ -45,8 +45,8 @@ pub trait TrainableModel {
 pub struct TrainConfig {
     /// Maximum number of epochs. Default 10 (Anomaly Transformer `num_epochs`).
     pub epochs: usize,
-    /// Windows per mini-batch. Default 32 (shared/reference/rust-stack.md §3, the measured
-    /// configuration; Anomaly Transformer uses 256 on a GPU).
+    /// Windows per mini-batch. Default 32 (sized for a 2-core CPU, the batch of the benches in
+    /// docs/performance.md; Anomaly Transformer uses 256 on a GPU).
     pub batch_size: usize,
     /// AdamW learning rate. Default 1e-3 (candle `ParamsAdamW` default).
     pub lr: f64,

@@ -83,7 +83,7 @@ impl Features {
 #[serde(deny_unknown_fields)]
 pub struct WindowConfig {
     /// Window length `l` in residue steps. Default 100 (Anomaly Transformer `win_size`, the
-    /// window of alg:alg2; shared/reference/anomaly-transformer-and-peers.md §2).
+    /// window of alg:alg2; thuml/Anomaly-Transformer `main.py`).
     pub len: usize,
     /// Steps between the starts of consecutive training windows. Default 10
     /// (docs/decisions/041-window-stride.md); QUADFormer, the CNN and the LSTM train at 20

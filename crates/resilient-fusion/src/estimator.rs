@@ -457,7 +457,7 @@ pub fn select_channels(out: &UpdateOutcome, channels: &[String]) -> Result<(Vec<
 /// The simplest online detector: alarm when the step's NIS exceeds a chi-squared quantile.
 ///
 /// With the GPS channels (3-D) a threshold of 16.27 is the χ²₃ 0.999 quantile
-/// (shared/reference/estimation-and-detectors.md §1.1).
+/// (16.266 in standard χ² tables).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NisGate {
     threshold: f64,

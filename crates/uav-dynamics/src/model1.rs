@@ -15,8 +15,9 @@
 //! y   = [p; q]                              (eq:model1g, C = [I₆ 0₆ₓ₉])
 //! ```
 //!
-//! The Jacobians are derived for the ZYX convention of [`crate::rotation`] (the reference notes'
-//! course formulas are Z-X-Y); with `w = ω_m − b_g`, `h(q) = G(q)⁻¹ w`:
+//! The Jacobians are derived for the ZYX convention of [`crate::rotation`] (the HKUST ELEC5660
+//! course's EKF formulas, which these models follow, are Z-X-Y); with `w = ω_m − b_g`,
+//! `h(q) = G(q)⁻¹ w`:
 //!
 //! ```text
 //! ∂h/∂φ = [tθ(cφ w₁ − sφ w₂),  −sφ w₁ − cφ w₂,  (cφ w₁ − sφ w₂)/cθ]ᵀ
@@ -50,7 +51,7 @@ pub const IDX_BG: usize = 9;
 /// Offset of `b_a` in the state.
 pub const IDX_BA: usize = 12;
 
-/// Gravity in the ENU world frame, m/s² (DESIGN.md "Conventions").
+/// Gravity in the ENU world frame, m/s² (docs/ARCHITECTURE.md, "Frames and units").
 pub const GRAVITY: Vector3<f64> = Vector3::new(0.0, 0.0, -9.81);
 
 /// Model I state vector `[p, q, v, b_g, b_a]`.

@@ -138,7 +138,7 @@ pub fn gps_jacobian() -> GpsJacobian {
 
 /// Keyframe clone map `M` (21×21): keeps the first 15 states and copies the current pose
 /// `[p, q]` into `[p_F, q_F]`, so that `x ← M x` and `P ← M P Mᵀ` (stochastic cloning with
-/// covariance and cross-covariances; `M = M_a M_r` of the reference notes).
+/// covariance and cross-covariances; `M = M_a M_r` of the HKUST ELEC5660 augmented EKF).
 #[allow(non_snake_case)]
 #[must_use]
 pub fn M() -> StateJacobian {

@@ -1,5 +1,5 @@
 //! Zero-mean sensor noise of equal standard deviation in Gaussian, centred exponential and
-//! Laplace shapes (paper sec. "Noise Model", subsec:system_modeling; DESIGN.md "Noise shapes").
+//! Laplace shapes (paper Sec. V-A, "Noise Model"; docs/decisions/020-sensor-noise-and-rates.md).
 //!
 //! Every sample is drawn as `σ·n` with `n` a unit-variance, zero-mean variate of the chosen
 //! shape, so experiments compare the *shape* of the noise, not its size:
@@ -51,7 +51,7 @@ impl NoiseShape {
 /// Whether exponential noise has its mean removed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
 pub enum ExponentialCentring {
-    /// Subtract the mean `1/κ`, giving zero-mean noise (DESIGN.md default).
+    /// Subtract the mean `1/κ`, giving zero-mean noise (the default, docs/decisions/020).
     #[default]
     Centred,
     /// Keep the raw one-sided exponential (mean `+σ`), a biased sensor.
@@ -61,7 +61,8 @@ pub enum ExponentialCentring {
 /// How the per-sensor `σ` maps onto each shape's scale parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
 pub enum NoiseScaling {
-    /// Every shape has standard deviation `σ` (DESIGN.md default): Laplace `b = σ/√2`.
+    /// Every shape has standard deviation `σ` (the default, docs/decisions/020): Laplace
+    /// `b = σ/√2`.
     #[default]
     EqualSigma,
     /// `σ` is the shape's natural scale: Laplace `b = σ`, exponential `1/κ = σ`.
@@ -75,10 +76,10 @@ pub struct NoiseConfig {
     /// Distribution shape. Default Gaussian (the EKF's own assumption).
     #[serde(default)]
     pub shape: NoiseShape,
-    /// Exponential centring. Default [`ExponentialCentring::Centred`] (DESIGN.md "Noise shapes").
+    /// Exponential centring. Default [`ExponentialCentring::Centred`] (docs/decisions/020).
     #[serde(default)]
     pub centring: ExponentialCentring,
-    /// Scale convention. Default [`NoiseScaling::EqualSigma`] (DESIGN.md "Noise shapes").
+    /// Scale convention. Default [`NoiseScaling::EqualSigma`] (docs/decisions/020).
     #[serde(default)]
     pub scaling: NoiseScaling,
 }

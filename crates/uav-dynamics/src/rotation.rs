@@ -1,5 +1,6 @@
 //! ZYX Euler rotations `R(q)`, the Euler-rate map `G(q)` and its inverse, matrix → Euler, and
-//! angle wrapping (DESIGN.md "Conventions"; used by paper eq:model1f, eq:model1g, eq:model2g).
+//! angle wrapping (docs/ARCHITECTURE.md, "Frames and units"; used by paper eq:model1f,
+//! eq:model1g, eq:model2g).
 //!
 //! Convention: `q = [φ, θ, ψ]` (roll, pitch, yaw, radians), `R(q) = Rz(ψ)·Ry(θ)·Rx(φ)` maps
 //! body-frame (FLU) vectors to the world frame (ENU). Body angular rate `ω_B = G(q)·q̇` with

@@ -1,8 +1,8 @@
 //! Sensor samples and flight records: the data that crosses from the simulator (or a user's
 //! flight log) into the estimator.
 //!
-//! Frames and units (DESIGN.md, "Conventions"): world frame ENU with z up, body frame FLU,
-//! positions in metres, angles in radians as ZYX Euler `[roll φ, pitch θ, yaw ψ]`, time in
+//! Frames and units (docs/ARCHITECTURE.md, "Frames and units"): world frame ENU with z up, body
+//! frame FLU, positions in metres, angles in radians as ZYX Euler `[roll φ, pitch θ, yaw ψ]`, time in
 //! seconds from the start of the flight.
 
 use nalgebra::Vector3;

@@ -1,6 +1,6 @@
 //! Flight simulator: true quadrotor states from a reference by differential flatness, and the
 //! multi-rate sensor streams of Model I and Model II (paper eq:model1f, eq:model1g,
-//! eq:model2g; DESIGN.md "Default rates").
+//! eq:model2g; default rates of docs/decisions/020-sensor-noise-and-rates.md).
 //!
 //! Truth (world ENU, z up, `g = [0, 0, −9.81]` m/s², ZYX Euler `q = [φ, θ, ψ]`):
 //!
@@ -49,15 +49,19 @@ pub fn gravity() -> Vector3<f64> {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SimConfig {
-    /// IMU rate in Hz. Default 200 (DESIGN.md "Default rates"; EuRoC VI-sensor ADIS16448).
+    /// IMU rate in Hz. Default 200 (EuRoC VI-sensor ADIS16448; docs/decisions/020).
     pub imu_rate_hz: u32,
-    /// GPS rate in Hz; must divide the IMU rate. Default 10 (DESIGN.md "Default rates").
+    /// GPS rate in Hz; must divide the IMU rate. Default 10 (u-blox M8/M9 receivers run at
+    /// 5–10 Hz; docs/decisions/020).
     pub gps_rate_hz: u32,
-    /// Attitude reference rate in Hz; must divide the IMU rate. Default 10 (DESIGN.md).
+    /// Attitude reference rate in Hz; must divide the IMU rate. Default 10, the GPS rate, so that
+    /// Model I pairs every fix with an attitude sample (docs/decisions/020).
     pub attitude_rate_hz: u32,
-    /// VO rate in Hz; must divide the IMU rate. Default 10 (DESIGN.md).
+    /// VO rate in Hz; must divide the IMU rate. Default 10, the GPS rate (EuRoC cameras run at
+    /// 20 Hz; docs/decisions/020).
     pub vo_rate_hz: u32,
-    /// Keyframe period in seconds; a whole number of VO periods. Default 1 (DESIGN.md).
+    /// Keyframe period in seconds; a whole number of VO periods. Default 1 (a choice;
+    /// docs/decisions/020).
     pub keyframe_period_s: f64,
     /// Gyroscope white-noise density in rad/s/√Hz. Default 1.6968e-4 (EuRoC ADIS16448
     /// sensor.yaml).

@@ -1,5 +1,6 @@
-//! Property tests of the ZYX rotation module (DESIGN.md "Conventions"): `R(q)` orthonormal with
-//! det 1, Euler ↔ R round trip away from gimbal lock, `G(q)·G(q)⁻¹ = I`, angle wrap in (−π, π].
+//! Property tests of the ZYX rotation module (docs/ARCHITECTURE.md, "Frames and units"): `R(q)`
+//! orthonormal with det 1, Euler ↔ R round trip away from gimbal lock, `G(q)·G(q)⁻¹ = I`, angle
+//! wrap in (−π, π].
 
 use nalgebra::{Matrix3, Vector3};
 use proptest::prelude::*;

@@ -8,7 +8,7 @@
 //! `NNN` is the flight's index in its split, zero-padded to three digits) and `DIR/dataset.json`
 //! (cell, seed, dataset key, per-split counts and which training flights are labelled).
 //! Validation and test flights carry a `label` column; of the training flights only the
-//! labelled subset (`--labelled-fraction`, default 0.1, DESIGN.md "Semi-supervision") does, the
+//! labelled subset (`--labelled-fraction`, default 0.1, decision 031) does, the
 //! others are written without one, exactly as the detectors see them (decision 080).
 
 use std::path::{Path, PathBuf};

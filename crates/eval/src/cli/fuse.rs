@@ -42,15 +42,15 @@ use crate::scenarios::{ScenarioRow, markdown, plot_case, rows, write_csv};
 /// Scenario selection of `--scenario`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum ScenarioArg {
-    /// Eight-shape, two loops (fig:simu1).
+    /// Eight-shape, two loops (paper Fig. 4).
     Eight,
-    /// UST letters (fig:simu2).
+    /// UST letters (paper Fig. 5).
     Ust,
-    /// Four-UAV square formation, UAV 3 attacked (fig:simu3).
+    /// Four-UAV square formation, UAV 3 attacked (paper Fig. 6).
     Formation,
-    /// Diagonal (fig:real1).
+    /// Diagonal (paper Fig. 7).
     Diagonal,
-    /// Square (fig:real2).
+    /// Square (paper Fig. 8).
     Square,
     /// All five.
     All,

@@ -1,5 +1,5 @@
-//! The `quadformer` command-line interface (DESIGN.md "What done looks like"): one module per
-//! subcommand, each with a clap `Args` struct and a `run` function returning [`CliError`].
+//! The `quadformer` command-line interface (docs/cli.md): one module per subcommand, each with
+//! a clap `Args` struct and a `run` function returning [`CliError`].
 //!
 //! Subcommands so far: `simulate` (config TOML → flight directory) and `residues` (flight
 //! directory → residue CSV, paper alg:alg1). To add one (`train`, `detect`, `fuse`,
@@ -62,7 +62,7 @@ pub enum Command {
     /// Score a residue CSV with a trained model directory and write per-step scores and alarms.
     Detect(detect::Args),
     /// Fly the paper's closed-loop scenarios (no attack; attack without and with detection,
-    /// alg:alg3) and write a metrics table and top-view plots.
+    /// Alg. 3) and write a metrics table and top-view plots.
     Fuse(fuse::Args),
     /// Run `fuse` for every scenario with the NIS gate and QUADFormer at 1 s and zero latency
     /// and write the combined table and plots under OUT/scenarios.

@@ -30,13 +30,13 @@ use crate::io::{
     stage_file, stage_residues, stage_truth,
 };
 
-/// Which EKF model to run (paper sec:residue_generator).
+/// Which EKF model to run (paper Sec. IV-A and V-A).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum ModelArg {
-    /// Model I: 15 states, GPS position + attitude measurement (eq:model1f, eq:model1g).
+    /// Model I: 15 states, GPS position + attitude measurement (paper Eqs. (28)–(29)).
     #[value(name = "I", alias = "1", alias = "i")]
     One,
-    /// Model II: 21 states with a keyframe clone, VO relative pose (+ GPS) (eq:model2f, eq:model2g).
+    /// Model II: 21 states with a keyframe clone, VO relative pose (+ GPS) (paper Eqs. (31)–(32)).
     #[value(name = "II", alias = "2", alias = "ii")]
     Two,
 }

@@ -3,7 +3,7 @@
 //! `quadformer detect`.
 //!
 //! Every `*.csv` in `--train` and `--valid` (sorted by name) is one flight. Labels are optional
-//! in training files (semi-supervision, DESIGN.md) and required in validation files, where the
+//! in training files (semi-supervision, decision 031) and required in validation files, where the
 //! method chooses its alarm threshold (the `Fit` contract: thresholds on validation only). All
 //! files must share one channel list (the `r_` columns, in order).
 //!

@@ -1,7 +1,7 @@
 //! CSV formats of the sensor streams and the ground truth (docs/data-format.md).
 //!
-//! Frames and units follow DESIGN.md "Conventions": world ENU (z up), body FLU, metres,
-//! radians (ZYX Euler `[roll φ, pitch θ, yaw ψ]`), seconds from the start of the flight.
+//! Frames and units follow docs/ARCHITECTURE.md, "Frames and units": world ENU (z up), body FLU,
+//! metres, radians (ZYX Euler `[roll φ, pitch θ, yaw ψ]`), seconds from the start of the flight.
 //! Every file has a header; time stamps must increase strictly; values must be finite and
 //! within plausibility bounds ([`MAX_GYRO_RAD_S`], [`MAX_ACCEL_M_S2`], [`MAX_ANGLE_RAD`],
 //! [`MAX_POSITION_M`], [`MAX_SPEED_M_S`]) far beyond any quadrotor's sensors.
