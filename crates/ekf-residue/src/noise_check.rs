@@ -186,7 +186,7 @@ pub fn estimate_measurement_noise(
     cfg: &FilterConfig,
     attacked: &dyn Fn(&[f64]) -> Vec<bool>,
 ) -> Result<NoiseEstimate, FilterError> {
-    let mut current = cfg.clone();
+    let mut current = *cfg;
     let mut rounds = 0;
     loop {
         let series = generate_residues(streams, &current)?.series;
@@ -204,7 +204,7 @@ pub fn estimate_measurement_noise(
         #[allow(clippy::cast_precision_loss)]
         let n = range.len() as f64;
         let mut moved = false;
-        let mut next = current.clone();
+        let mut next = current;
         for (i, channel) in series.channels().iter().enumerate() {
             let (mut r2, mut s_ii) = (0.0, 0.0);
             for k in range.clone() {
@@ -226,7 +226,7 @@ pub fn estimate_measurement_noise(
                 .channels()
                 .iter()
                 .filter_map(|c| {
-                    let before = *sigma_slot(&mut cfg.clone(), c)?;
+                    let before = *sigma_slot(&mut { *cfg }, c)?;
                     let after = *sigma_slot(&mut current, c)?;
                     Some(ChannelSigma { channel: c.clone(), before, after })
                 })
@@ -266,7 +266,7 @@ mod tests {
         let sim = SimConfig::default();
         let flight = simulate(&sim, &square(&ShapeConfig::default()).unwrap(), 40.0, 3).unwrap();
         let right = FilterConfig::for_sim(ModelKind::ModelI, &sim);
-        let mut wrong = right.clone();
+        let mut wrong = right;
         for s in &mut wrong.meas.gps_sigma_m {
             *s *= 4.0;
         }

@@ -200,8 +200,12 @@ fn is_integer(t: &FlattenedFieldType) -> bool {
     !matches!(t, FlattenedFieldType::Float | FlattenedFieldType::Double | FlattenedFieldType::Char)
 }
 
+/// What [`parse`] keeps: the wanted topics by name, the message count of every topic, and how
+/// the log ended.
+type Parsed = (BTreeMap<String, Topic>, BTreeMap<String, usize>, Completeness);
+
 /// Parses the log, keeping the topics of [`TOPICS`] (instance 0) and counting every topic.
-fn parse(path: &Path) -> Result<(BTreeMap<String, Topic>, BTreeMap<String, usize>, Completeness)> {
+fn parse(path: &Path) -> Result<Parsed> {
     let err = |msg: String| IoError::Ulog { path: path.to_owned(), msg };
     // Regular file within its budget, and a ULog at all, before the parser sees it.
     if !is_ulog(path) {
@@ -435,7 +439,8 @@ fn convert_gps(
     let mut frame: Option<LocalEnu> = None;
     let (mut out, mut h_acc, mut v_acc) = (Vec::new(), Vec::new(), Vec::new());
     for k in rows {
-        if fix.is_some_and(|f| !(f[k] >= f64::from(opts.min_fix_type))) {
+        // A NaN fix type counts as no fix.
+        if fix.is_some_and(|f| f[k].is_nan() || f[k] < f64::from(opts.min_fix_type)) {
             counts[1] += 1;
             continue;
         }
