@@ -50,20 +50,22 @@ fn residues_help() {
     check(
         &["residues", "-h"],
         expect![[r#"
-        Run the Model I or Model II EKF on a flight directory (simulated or your own log) and write the residue sequence r_k, S_k, NIS (and labels, if known) as CSV
+            Run the Model I or Model II EKF on a flight directory (simulated or your own log) or a PX4 ULog and write the residue sequence r_k, S_k, NIS (and labels, if known) as CSV
 
-        Usage: quadformer residues [OPTIONS] --model <MODEL> --in <DIR> --out <FILE.csv>
+            Usage: quadformer residues [OPTIONS] --model <MODEL> --in <DIR|LOG.ulg> --out <FILE.csv>
 
-        Options:
-              --model <MODEL>              EKF model: I (GPS + attitude) or II (VO + GPS, keyframe cloning) [possible values: I, II]
-              --in <DIR>                   Flight directory: imu.csv plus the streams the model needs (I: gps.csv and attitude.csv; II: vo.csv, with gps.csv and attitude.csv used when present); truth.csv and attack.csv are optional
-              --out <FILE.csv>             Output residue CSV (written atomically)
-              --covariance <COVARIANCE>    How to store S_k [default: upper] [possible values: upper, full]
-              --filter-config <FILE.toml>  Filter settings (TOML, `ekf_residue::residues::FilterConfig` fields: imu, meas, init, cov_update, guard, pair_tolerance_s); keys left out keep the base values
-              --estimates <FILE.csv>       Also write the posterior state estimate after each residue step (truth.csv columns)
-              --no-labels                  Do not write a label column even if attack.csv exists
-          -h, --help                       Print help (see more with '--help')
-          -V, --version                    Print version
-    "#]],
+            Options:
+                  --model <MODEL>              EKF model: I (GPS + attitude) or II (VO + GPS, keyframe cloning) [possible values: I, II]
+                  --in <DIR|LOG.ulg>           Flight directory (imu.csv plus the streams the model needs: I: gps.csv and attitude.csv; II: vo.csv, with gps.csv and attitude.csv used when present; truth.csv, attack.csv and filter.toml are optional), or a PX4 ULog file (.ulg)
+                  --out <FILE.csv>             Output residue CSV (written atomically); the filter used goes beside it, as FILE.filter.toml
+                  --covariance <COVARIANCE>    How to store S_k [default: upper] [possible values: upper, full]
+                  --filter-config <FILE.toml>  Filter settings (TOML, `ekf_residue::residues::FilterConfig` fields: imu, meas, init, cov_update, guard, pair_tolerance_s); keys left out keep the base values
+                  --estimates <FILE.csv>       Also write the posterior state estimate after each residue step (truth.csv columns)
+                  --no-labels                  Do not write a label column even if attack.csv exists
+                  --estimate-noise             Estimate the measurement σ from the flight's first clean stretch (covariance matching) and use them; the figures used are printed and written to FILE.filter.toml
+                  --gps-min-fix <N>            ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all) [default: 3]
+              -h, --help                       Print help (see more with '--help')
+              -V, --version                    Print version
+        "#]],
     );
 }
