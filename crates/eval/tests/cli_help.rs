@@ -64,6 +64,7 @@ fn residues_help() {
                   --no-labels                  Do not write a label column even if attack.csv exists
                   --estimate-noise             Estimate the measurement σ from the flight's first clean stretch (covariance matching) and use them; the figures used are printed and written to FILE.filter.toml
                   --gps-min-fix <N>            ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all) [default: 3]
+                  --columns <MAP|FILE.toml>    Flight directory from another tool: its CSV column names mapped to the project's, as THEIRS=OURS pairs (`gx=gyro_x,gy=gyro_y`) or a TOML file of `THEIRS = "OURS"` lines
               -h, --help                       Print help (see more with '--help')
               -V, --version                    Print version
         "#]],

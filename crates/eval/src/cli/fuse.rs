@@ -135,6 +135,10 @@ pub struct Args {
     /// ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all).
     #[arg(long, value_name = "N", default_value_t = crate::io::DEFAULT_MIN_FIX_TYPE, requires = "input")]
     pub gps_min_fix: u8,
+    /// Flight directory from another tool: its CSV column names mapped to the project's, as
+    /// THEIRS=OURS pairs (`gx=gyro_x,gy=gyro_y`) or a TOML file of `THEIRS = "OURS"` lines.
+    #[arg(long, value_name = "MAP|FILE.toml")]
+    pub columns: Option<String>,
     /// EKF of a flight folder: I (GPS + attitude) or II (VO + GPS).
     #[arg(long, value_enum, default_value = "II", requires = "input")]
     pub ekf: ModelArg,
@@ -403,7 +407,11 @@ struct LoopRow {
 
 /// `fuse --in DIR`: fly a flight folder through the resilient estimator with the detector.
 fn fly_folder(args: &Args, dir: &Path, det: &FusionDetector) -> Result<(), CliError> {
-    let loaded = crate::io::read_flight(dir, &UlogOptions { min_fix_type: args.gps_min_fix })?;
+    let loaded = crate::io::read_flight(
+        dir,
+        &UlogOptions { min_fix_type: args.gps_min_fix },
+        &crate::cli::column_map(args.columns.as_deref())?,
+    )?;
     for note in &loaded.notes {
         eprintln!("{}: {note}", dir.display());
     }

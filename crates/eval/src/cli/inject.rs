@@ -83,6 +83,10 @@ pub struct Args {
     /// ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all).
     #[arg(long, value_name = "N", default_value_t = DEFAULT_MIN_FIX_TYPE)]
     pub gps_min_fix: u8,
+    /// Flight directory from another tool: its CSV column names mapped to the project's, as
+    /// THEIRS=OURS pairs (`gx=gyro_x,gy=gyro_y`) or a TOML file of `THEIRS = "OURS"` lines.
+    #[arg(long, value_name = "MAP|FILE.toml")]
+    pub columns: Option<String>,
     /// Output flight directory (created atomically; must not exist or be empty unless --force).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
@@ -151,7 +155,11 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     check_outputs(&[Input::new("--in", &args.input)], &[Output::dir("--out", &args.out)])?;
     check_dir_output(&args.out, overwrite)?;
     let iv = interval(args)?;
-    let loaded = read_flight(&args.input, &UlogOptions { min_fix_type: args.gps_min_fix })?;
+    let loaded = read_flight(
+        &args.input,
+        &UlogOptions { min_fix_type: args.gps_min_fix },
+        &crate::cli::column_map(args.columns.as_deref())?,
+    )?;
     for note in &loaded.notes {
         eprintln!("{}: {note}", args.input.display());
     }

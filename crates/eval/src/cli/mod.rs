@@ -69,6 +69,22 @@ pub enum Command {
     Figures(figures::Args),
 }
 
+/// The column map of a `--columns` value: a TOML file (`THEIRS = "OURS"` lines) when the value
+/// names one, else `THEIRS=OURS` pairs separated by commas; empty without the flag.
+///
+/// # Errors
+/// [`CliError::Input`] naming `--columns` or the file and the bad entry.
+pub fn column_map(arg: Option<&str>) -> Result<crate::io::ColumnMap, CliError> {
+    let Some(arg) = arg else { return Ok(crate::io::ColumnMap::default()) };
+    let path = std::path::Path::new(arg);
+    if std::path::Path::new(arg).extension().is_some_and(|e| e == "toml") {
+        let text = crate::io::read_text(path)?;
+        return crate::io::ColumnMap::parse_toml(&text)
+            .map_err(|msg| CliError::Input { path: path.to_owned(), msg: format!("column map: {msg}") });
+    }
+    crate::io::ColumnMap::parse_pairs(arg).map_err(|msg| CliError::Input { path: PathBuf::from("--columns"), msg })
+}
+
 /// Runs a parsed command line.
 ///
 /// # Errors

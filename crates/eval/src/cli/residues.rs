@@ -104,6 +104,10 @@ pub struct Args {
     /// ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all).
     #[arg(long, value_name = "N", default_value_t = DEFAULT_MIN_FIX_TYPE)]
     pub gps_min_fix: u8,
+    /// Flight directory from another tool: its CSV column names mapped to the project's, as
+    /// THEIRS=OURS pairs (`gx=gyro_x,gy=gyro_y`) or a TOML file of `THEIRS = "OURS"` lines.
+    #[arg(long, value_name = "MAP|FILE.toml")]
+    pub columns: Option<String>,
 }
 
 /// Where the filter record of a residue file goes: `FILE.csv` → `FILE.filter.toml`.
@@ -124,7 +128,11 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     let mut outputs = vec![Output::file("--out", &args.out), Output::file("the filter record", &record)];
     outputs.extend(args.estimates.as_deref().map(|p| Output::file("--estimates", p)));
     check_outputs(&inputs, &outputs)?;
-    let loaded = read_flight(&args.input, &UlogOptions { min_fix_type: args.gps_min_fix })?;
+    let loaded = read_flight(
+        &args.input,
+        &UlogOptions { min_fix_type: args.gps_min_fix },
+        &crate::cli::column_map(args.columns.as_deref())?,
+    )?;
     for note in &loaded.notes {
         eprintln!("{}: {note}", args.input.display());
     }

@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 
 use crate::io::atomic::write_file_atomic;
 use crate::io::error::Result;
-use crate::io::table::{CsvIn, CsvOut};
+use crate::io::table::{ColumnMap, CsvIn, CsvOut};
 
 /// Columns of `attack.csv`.
 pub const ATTACK_COLUMNS: [&str; 5] = ["t", "label", "d_x", "d_y", "d_z"];
@@ -33,7 +33,15 @@ pub struct AttackRecord {
 /// [`crate::io::IoError`] naming file, line and column: missing column, wrong field count, a
 /// value not a number or not finite, a label not `0`/`1`, non-increasing time stamps.
 pub fn read_attack(path: &Path) -> Result<Vec<AttackRecord>> {
-    let mut input = CsvIn::open(path)?;
+    read_attack_mapped(path, &ColumnMap::default())
+}
+
+/// [`read_attack`] with another tool's column names renamed by `map`.
+///
+/// # Errors
+/// As [`read_attack`].
+pub(crate) fn read_attack_mapped(path: &Path, map: &ColumnMap) -> Result<Vec<AttackRecord>> {
+    let mut input = CsvIn::open_mapped(path, map)?;
     let cols = input.columns(&ATTACK_COLUMNS)?;
     let mut out = Vec::new();
     let mut prev_t = None;

@@ -48,6 +48,21 @@ pub enum IoError {
         /// The columns the header has.
         found: Vec<String>,
     },
+    /// Several required columns are absent from the header.
+    #[error(
+        "{}: line 1: missing columns {} (header has: {}); another tool's names can be mapped with --columns THEIRS=OURS,...",
+        path.display(),
+        columns.iter().map(|c| format!("`{c}`")).collect::<Vec<_>>().join(", "),
+        found.join(",")
+    )]
+    MissingColumns {
+        /// The CSV file.
+        path: PathBuf,
+        /// Every required column that is absent.
+        columns: Vec<String>,
+        /// The columns the header has.
+        found: Vec<String>,
+    },
     /// The header is malformed (empty, duplicate names, an unknown column).
     #[error("{}: line {line}: {msg}", path.display())]
     Header {

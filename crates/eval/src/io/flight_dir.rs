@@ -23,13 +23,13 @@ use std::path::Path;
 use uav_dynamics::{SensorStreams, TruthSample};
 
 use crate::io::atomic::{Overwrite, write_dir_atomic, write_text_atomic};
-use crate::io::attack::{AttackRecord, TIME_MATCH_TOL_S, read_attack, write_attack};
+use crate::io::attack::{AttackRecord, TIME_MATCH_TOL_S, read_attack_mapped, write_attack};
 use crate::io::error::{IoError, Result};
 use crate::io::input_file::read_text;
 use crate::io::streams::{
-    read_attitude, read_gps, read_imu, read_truth, read_vo, require_file, write_attitude, write_gps, write_imu,
-    write_truth, write_vo,
+    read_gps_mapped, read_records, require_file, write_attitude, write_gps, write_imu, write_truth, write_vo,
 };
+use crate::io::table::ColumnMap;
 use crate::io::ulog::{UlogOptions, is_ulog, read_ulog};
 
 /// File name of the IMU stream.
@@ -74,7 +74,8 @@ pub struct LoadedFlight {
     pub notes: Vec<String>,
 }
 
-/// Reads a flight from a flight directory or a PX4 ULog file (recognised by its magic bytes).
+/// Reads a flight from a flight directory (its CSV headers renamed by `columns`) or a PX4 ULog
+/// file (recognised by its magic bytes).
 ///
 /// A ULog gives the streams of [`crate::io::read_ulog`] and, when the receiver reports its
 /// accuracy, a `filter.toml` that sets the GPS σ from it; it has no truth and no attack file.
@@ -82,9 +83,9 @@ pub struct LoadedFlight {
 /// # Errors
 /// As [`read_flight_dir`] or [`crate::io::read_ulog`]; [`IoError::MissingFile`] for a path
 /// that is neither a directory nor a ULog.
-pub fn read_flight(path: &Path, ulog: &UlogOptions) -> Result<LoadedFlight> {
+pub fn read_flight(path: &Path, ulog: &UlogOptions, columns: &ColumnMap) -> Result<LoadedFlight> {
     if path.is_dir() {
-        return Ok(LoadedFlight { flight: read_flight_dir(path)?, notes: Vec::new() });
+        return Ok(LoadedFlight { flight: read_flight_dir_mapped(path, columns)?, notes: Vec::new() });
     }
     if !is_ulog(path) {
         return Err(IoError::MissingFile {
@@ -122,25 +123,33 @@ fn present(dir: &Path, name: &str) -> Option<std::path::PathBuf> {
 /// (naming file, line and column); [`IoError::Inconsistent`] if `attack.csv` does not have
 /// exactly one row per GPS fix at the same times.
 pub fn read_flight_dir(dir: &Path) -> Result<FlightDir> {
+    read_flight_dir_mapped(dir, &ColumnMap::default())
+}
+
+/// [`read_flight_dir`] with every CSV header renamed by `map` (another tool's column names).
+///
+/// # Errors
+/// As [`read_flight_dir`]; a missing column error names every column a file lacks.
+pub fn read_flight_dir_mapped(dir: &Path, map: &ColumnMap) -> Result<FlightDir> {
     if !dir.is_dir() {
         return Err(IoError::MissingFile { path: dir.to_owned(), why: "a flight directory is required".into() });
     }
     let imu_path = dir.join(IMU_FILE);
     require_file(&imu_path, "every flight directory needs its IMU stream")?;
-    let mut streams = SensorStreams { imu: read_imu(&imu_path)?, ..SensorStreams::default() };
+    let mut streams = SensorStreams { imu: read_records(&imu_path, map)?, ..SensorStreams::default() };
     if let Some(p) = present(dir, GPS_FILE) {
-        streams.gps = read_gps(&p)?;
+        streams.gps = read_gps_mapped(&p, map)?;
     }
     if let Some(p) = present(dir, ATTITUDE_FILE) {
-        streams.attitude = read_attitude(&p)?;
+        streams.attitude = read_records(&p, map)?;
     }
     if let Some(p) = present(dir, VO_FILE) {
-        streams.vo = read_vo(&p)?;
+        streams.vo = read_records(&p, map)?;
     }
-    let truth = present(dir, TRUTH_FILE).map(|p| read_truth(&p)).transpose()?;
+    let truth = present(dir, TRUTH_FILE).map(|p| read_records(&p, map)).transpose()?;
     let attack = match present(dir, ATTACK_FILE) {
         Some(p) => {
-            let records = read_attack(&p)?;
+            let records = read_attack_mapped(&p, map)?;
             check_attack_matches_gps(&p, &records, &streams)?;
             Some(records)
         }

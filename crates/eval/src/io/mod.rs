@@ -46,7 +46,7 @@ pub use error::{IoError, Result};
 pub use flight_config::{FlightConfig, MAX_SEED, SeedStream, TrajectoryConfig, TrajectoryKind};
 pub use flight_dir::{
     ATTACK_FILE, ATTITUDE_FILE, CONFIG_FILE, FILTER_FILE, FlightDir, GPS_FILE, IMU_FILE, LoadedFlight, TRUTH_FILE,
-    VO_FILE, read_flight, read_flight_dir, write_flight_dir,
+    VO_FILE, read_flight, read_flight_dir, read_flight_dir_mapped, write_flight_dir,
 };
 pub use input_file::{MAX_CSV_BYTES, MAX_TEXT_BYTES, open_input, read_text};
 pub use output_check::{Input, Output, check_outputs};
@@ -56,6 +56,7 @@ pub use streams::{
     MAX_POSITION_M, MAX_SPEED_M_S, TRUTH_COLUMNS, VO_COLUMNS, read_attitude, read_gps, read_imu, read_truth, read_vo,
     stage_truth, write_attitude, write_gps, write_imu, write_truth, write_vo,
 };
+pub use table::ColumnMap;
 pub use toml_merge::merge_over;
 pub use ulog::{
     DEFAULT_MIN_FIX_TYPE, MAX_ULOG_BYTES, ULOG_MAGIC, UlogFlight, UlogOptions, VO_KEYFRAME_PERIOD_S, is_ulog, read_ulog,

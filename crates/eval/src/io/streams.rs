@@ -21,7 +21,7 @@ use uav_dynamics::{AttitudeSample, GpsSample, ImuSample, TruthSample, VoSample};
 
 use crate::io::atomic::{Staged, stage_file};
 use crate::io::error::{IoError, Result};
-use crate::io::table::{CsvIn, CsvOut, Row};
+use crate::io::table::{ColumnMap, CsvIn, CsvOut, Row};
 
 /// Plausibility bound of angular rates, rad/s (about 5,700 °/s; MEMS gyros of flight
 /// controllers saturate at ±2,000 °/s ≈ 35 rad/s). Readers refuse larger values.
@@ -146,8 +146,8 @@ impl CsvRecord for TruthSample {
 /// [`IoError`] naming the file, and the line and column where it applies: missing file or
 /// column, wrong number of fields, a value that is not a number or not finite, a time stamp
 /// not after the previous one, a decreasing keyframe index.
-pub(crate) fn read_records<R: CsvRecord>(path: &Path) -> Result<Vec<R>> {
-    let mut input = CsvIn::open(path)?;
+pub(crate) fn read_records<R: CsvRecord>(path: &Path, map: &ColumnMap) -> Result<Vec<R>> {
+    let mut input = CsvIn::open_mapped(path, map)?;
     let cols = input.columns(R::COLUMNS)?;
     let keyframe_col = input.optional_column("keyframe").filter(|_| R::COLUMNS.contains(&"keyframe"));
     let mut out: Vec<R> = Vec::new();
@@ -210,7 +210,7 @@ macro_rules! stream_io {
         /// [`IoError`] naming the file, line and column of the first bad value, missing column,
         /// wrong field count or non-increasing time stamp.
         pub fn $read(path: &Path) -> Result<Vec<$ty>> {
-            read_records(path)
+            read_records(path, &ColumnMap::default())
         }
 
         #[doc = concat!("Writes `", $file, "` atomically (temporary file, then rename).")]
@@ -250,13 +250,21 @@ pub const GPS_GEODETIC_COLUMNS: [&str; 4] = ["t", "lat_deg", "lon_deg", "h_m"];
 /// [`IoError`] naming the file, line and column of the first bad value, missing column,
 /// wrong field count, non-increasing time stamp, or latitude outside [−90°, 90°].
 pub fn read_gps(path: &Path) -> Result<Vec<GpsSample>> {
-    let probe = CsvIn::open(path)?;
+    read_gps_mapped(path, &ColumnMap::default())
+}
+
+/// [`read_gps`] with another tool's column names renamed by `map`.
+///
+/// # Errors
+/// As [`read_gps`].
+pub(crate) fn read_gps_mapped(path: &Path, map: &ColumnMap) -> Result<Vec<GpsSample>> {
+    let probe = CsvIn::open_mapped(path, map)?;
     let geodetic = probe.optional_column("p_x").is_none() && probe.optional_column("lat_deg").is_some();
     drop(probe);
     if !geodetic {
-        return read_records(path);
+        return read_records(path, map);
     }
-    let mut input = CsvIn::open(path)?;
+    let mut input = CsvIn::open_mapped(path, map)?;
     let cols = input.columns(&GPS_GEODETIC_COLUMNS)?;
     let mut out = Vec::new();
     let mut enu: Option<LocalEnu> = None;

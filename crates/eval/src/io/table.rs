@@ -14,6 +14,61 @@ use std::path::{Path, PathBuf};
 
 use crate::io::error::{IoError, Result};
 
+/// Renames of another tool's CSV columns to the project's (`THEIRS → OURS`), applied to every
+/// header a flight read sees, so that its files need no rewriting (docs/data-format.md
+/// "Another tool's CSV").
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ColumnMap(std::collections::BTreeMap<String, String>);
+
+impl ColumnMap {
+    /// Parses `THEIRS=OURS` pairs separated by commas (`gx=gyro_x,gy=gyro_y`).
+    ///
+    /// # Errors
+    /// A message naming the pair that is not `THEIRS=OURS` or maps a name twice.
+    pub fn parse_pairs(text: &str) -> std::result::Result<Self, String> {
+        let mut map = std::collections::BTreeMap::new();
+        for pair in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            let (theirs, ours) = pair
+                .split_once('=')
+                .map(|(a, b)| (a.trim(), b.trim()))
+                .filter(|(a, b)| !a.is_empty() && !b.is_empty())
+                .ok_or_else(|| format!("`{pair}` is not THEIRS=OURS"))?;
+            if map.insert(theirs.to_owned(), ours.to_owned()).is_some() {
+                return Err(format!("`{theirs}` is mapped twice"));
+            }
+        }
+        Ok(Self(map))
+    }
+
+    /// Parses a TOML table of `THEIRS = "OURS"` strings (top level or under `[columns]`).
+    ///
+    /// # Errors
+    /// A message naming the key whose value is not a string.
+    pub fn parse_toml(text: &str) -> std::result::Result<Self, String> {
+        let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| e.to_string())?;
+        if let Some(toml::Value::Table(inner)) = table.remove("columns") {
+            table = inner;
+        }
+        let mut map = std::collections::BTreeMap::new();
+        for (theirs, v) in table {
+            let ours = v.as_str().ok_or_else(|| format!("`{theirs}`: the project's column name must be a string"))?;
+            map.insert(theirs, ours.to_owned());
+        }
+        Ok(Self(map))
+    }
+
+    /// The project's name of a header name.
+    fn rename<'a>(&'a self, name: &'a str) -> &'a str {
+        self.0.get(name).map_or(name, String::as_str)
+    }
+
+    /// Whether the map renames nothing.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+}
+
 /// An open CSV file with its header.
 pub(crate) struct CsvIn {
     path: PathBuf,
@@ -38,6 +93,11 @@ impl Row {
 impl CsvIn {
     /// Opens `path` and reads its header.
     pub(crate) fn open(path: &Path) -> Result<Self> {
+        Self::open_mapped(path, &ColumnMap::default())
+    }
+
+    /// Opens `path` and reads its header, renaming columns by `map`.
+    pub(crate) fn open_mapped(path: &Path, map: &ColumnMap) -> Result<Self> {
         let file = crate::io::input_file::open_input(path, crate::io::input_file::MAX_CSV_BYTES)?;
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(false)
@@ -55,7 +115,7 @@ impl CsvIn {
         let header: Vec<String> = rec
             .iter()
             .enumerate()
-            .map(|(i, h)| if i == 0 { h.trim_start_matches('\u{feff}') } else { h }.to_owned())
+            .map(|(i, h)| map.rename(if i == 0 { h.trim_start_matches('\u{feff}') } else { h }).to_owned())
             .collect();
         for (i, name) in header.iter().enumerate() {
             if name.is_empty() {
@@ -100,9 +160,19 @@ impl CsvIn {
         self.header.iter().position(|h| h == name)
     }
 
-    /// Indices of required columns, in the order asked.
+    /// Indices of required columns, in the order asked; every missing one is named at once.
     pub(crate) fn columns(&self, names: &[&str]) -> Result<Vec<usize>> {
-        names.iter().map(|n| self.column(n)).collect()
+        let missing: Vec<String> =
+            names.iter().filter(|n| self.optional_column(n).is_none()).map(|n| (*n).to_owned()).collect();
+        match missing.len() {
+            0 => names.iter().map(|n| self.column(n)).collect(),
+            1 => Err(IoError::MissingColumn {
+                path: self.path.clone(),
+                column: missing[0].clone(),
+                found: self.header.clone(),
+            }),
+            _ => Err(IoError::MissingColumns { path: self.path.clone(), columns: missing, found: self.header.clone() }),
+        }
     }
 
     /// Reads the next record; `None` at the end of the file.
