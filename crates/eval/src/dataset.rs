@@ -60,7 +60,7 @@ pub const FORMAT_VERSION: u32 = 1;
 /// Two time stamps closer than this (seconds) are the same instant when labels are aligned.
 /// The simulator stamps every stream at exact multiples of its period, so any tolerance far
 /// below the 0.1 s GPS period works; 1 ms matches `ekf_residue`'s pairing tolerance.
-pub const LABEL_TOLERANCE_S: f64 = 1e-3;
+pub const LABEL_TOLERANCE_S: f64 = crate::io::TIME_MATCH_TOL_S;
 
 /// First bytes of a cache file.
 const MAGIC: [u8; 8] = *b"QFDSET\x00\x01";
@@ -836,21 +836,7 @@ struct FlightFile {
     labels: Vec<bool>,
 }
 
-/// Label of each residue step: the label of the GPS fix at the same time (within
-/// [`LABEL_TOLERANCE_S`]), `false` when no fix is there. Both time lists must be sorted.
-#[must_use]
-pub fn align_labels(residue_t: &[f64], gps_t: &[f64], gps_labels: &[bool]) -> Vec<bool> {
-    let mut j = 0;
-    residue_t
-        .iter()
-        .map(|&t| {
-            while j < gps_t.len() && gps_t[j] < t - LABEL_TOLERANCE_S {
-                j += 1;
-            }
-            j < gps_t.len() && (gps_t[j] - t).abs() <= LABEL_TOLERANCE_S && gps_labels.get(j).copied().unwrap_or(false)
-        })
-        .collect()
-}
+pub use crate::io::align_labels;
 
 /// One simulated flight before filtering: the clean sensor streams with the true state, and
 /// the attack plan drawn for it.
@@ -1006,13 +992,8 @@ pub fn load_or_build(cfg: &ValidDatasetConfig, cache_dir: &Path) -> Result<(Data
     let start = Instant::now();
     let data = build(cfg)?;
     let build_s = start.elapsed().as_secs_f64();
-    write_atomic(&path, &data.to_bytes()?)?;
+    crate::io::write_bytes_atomic(&path, &data.to_bytes()?)?;
     Ok((data, CacheOutcome::Built { path, reason, build_s }))
-}
-
-/// Writes `bytes` to `path` atomically (`crate::io::write_bytes_atomic`).
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    Ok(crate::io::write_bytes_atomic(path, bytes)?)
 }
 
 #[cfg(test)]

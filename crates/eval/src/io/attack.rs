@@ -82,14 +82,23 @@ pub const TIME_MATCH_TOL_S: f64 = 1e-3;
 /// [`TIME_MATCH_TOL_S`]); a residue step with no GPS sample at its time is clean (the rule of
 /// the dataset builder, docs/datasets.md). Both inputs must be sorted by time.
 pub fn labels_at(residue_t: &[f64], attack: &[AttackRecord]) -> Vec<bool> {
+    let fix_t: Vec<f64> = attack.iter().map(|a| a.t).collect();
+    let fix_labels: Vec<bool> = attack.iter().map(|a| a.label).collect();
+    align_labels(residue_t, &fix_t, &fix_labels)
+}
+
+/// Label of each residue step: the label of the GPS fix at the same time (within
+/// [`TIME_MATCH_TOL_S`]), `false` when no fix is there. Both time lists must be sorted.
+#[must_use]
+pub fn align_labels(residue_t: &[f64], fix_t: &[f64], fix_labels: &[bool]) -> Vec<bool> {
     let mut j = 0;
     residue_t
         .iter()
         .map(|&t| {
-            while j < attack.len() && attack[j].t < t - TIME_MATCH_TOL_S {
+            while j < fix_t.len() && fix_t[j] < t - TIME_MATCH_TOL_S {
                 j += 1;
             }
-            attack.get(j).is_some_and(|a| (a.t - t).abs() <= TIME_MATCH_TOL_S && a.label)
+            j < fix_t.len() && (fix_t[j] - t).abs() <= TIME_MATCH_TOL_S && fix_labels.get(j).copied().unwrap_or(false)
         })
         .collect()
 }

@@ -25,6 +25,7 @@ use uav_dynamics::trajectory::{self, RandomRouteConfig, ShapeConfig, Trajectory}
 
 use crate::io::atomic::write_text_atomic;
 use crate::io::error::{IoError, Result};
+use crate::io::toml_merge::merge_over;
 
 /// Which reference trajectory to fly (paper sec. "Simulation Experiment" and "Real-world
 /// Experiment"; random routes are the training flights of sec. "Attack Scenario and Training
@@ -251,19 +252,10 @@ fn fill_defaults(root: &mut toml::Table, keys: &[&str], default: toml::Table) {
             _ => return,
         }
     }
-    merge_missing(table, default);
-}
-
-fn merge_missing(user: &mut toml::Table, default: toml::Table) {
-    for (key, dv) in default {
-        match (user.get_mut(&key), dv) {
-            (None, dv) => {
-                user.insert(key, dv);
-            }
-            (Some(toml::Value::Table(ut)), toml::Value::Table(dt)) => merge_missing(ut, dt),
-            _ => {}
-        }
-    }
+    // The user's keys over the defaults: the one TOML merge (`crate::io::merge_over`).
+    let mut merged = default;
+    merge_over(&mut merged, std::mem::take(table));
+    *table = merged;
 }
 
 #[cfg(test)]

@@ -41,7 +41,7 @@ pub use atomic::{
     stage_file, write_bytes_atomic, write_dir_atomic, write_file_atomic, write_into_dir_atomic, write_path_atomic,
     write_text_atomic,
 };
-pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, labels_at, read_attack, write_attack};
+pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, align_labels, labels_at, read_attack, write_attack};
 pub use error::{IoError, Result};
 pub use flight_config::{FlightConfig, MAX_SEED, SeedStream, TrajectoryConfig, TrajectoryKind};
 pub use flight_dir::{
