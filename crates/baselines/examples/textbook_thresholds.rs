@@ -8,7 +8,8 @@ use baselines::sprt::wald_thresholds;
 use baselines::stats::{chi2_cdf, chi2_quantile, cusum_tau_for_far};
 use baselines::synthetic::{SyntheticAttack, SyntheticFlight};
 use baselines::{BhtConfig, Chi2Config, CusumConfig, Px4GateConfig, SprtConfig};
-use ekf_residue::{Confusion, Detector, Fit, LabelledResidues};
+use detection_metrics::Confusion;
+use ekf_residue::{Detector, Fit, LabelledResidues};
 
 fn split(seeds: &[u64], bias_m: f64) -> Result<LabelledResidues, Box<dyn std::error::Error>> {
     let attacks: Vec<SyntheticAttack> = (0..10)

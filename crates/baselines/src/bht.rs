@@ -166,7 +166,7 @@ impl Fit for BhtConfig {
                 let mut best = (f64::NEG_INFINITY, 1, 0.0);
                 for &n in &self.n_grid {
                     let scores: Vec<Vec<f64>> = pairs.iter().map(|(s, _)| bht_scores(&det, n, s)).collect();
-                    let (gamma, f1) = ekf_residue::best_f1_threshold(
+                    let (gamma, f1) = detection_metrics::best_f1_threshold(
                         scores.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)),
                     )?;
                     if f1 > best.0 {

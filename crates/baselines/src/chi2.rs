@@ -59,7 +59,7 @@ impl Fit for Chi2Config {
             Tuning::Textbook => chi2_quantile(channels.len() as f64, 1.0 - self.far)?,
             Tuning::ValidationF1 => {
                 let pairs = labelled_valid(valid)?;
-                ekf_residue::best_f1_threshold(pairs.iter().map(|(s, l)| (s.nis(), *l)))?.0
+                detection_metrics::best_f1_threshold(pairs.iter().map(|(s, l)| (s.nis(), *l)))?.0
             }
         };
         Ok(Chi2 { channels, alpha, tuning: self.tuning })

@@ -1,7 +1,8 @@
 //! Pieces shared by the statistical detectors: the tuning switch (textbook setting or
 //! validation-F1 choice), per-step F1 of alarm sequences, and validation-split helpers.
 
-use ekf_residue::{Confusion, DetectError, LabelledResidues, ResidueSeries};
+use detection_metrics::Confusion;
+use ekf_residue::{DetectError, LabelledResidues, ResidueSeries};
 use serde::{Deserialize, Serialize};
 
 /// How a detector's thresholds and tunable parameters are set.

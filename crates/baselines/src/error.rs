@@ -36,6 +36,13 @@ pub enum BaselineError {
     },
 }
 
+impl From<detection_metrics::MetricsError> for BaselineError {
+    /// The threshold search of a fit failed (`DetectError`'s reading of it).
+    fn from(e: detection_metrics::MetricsError) -> Self {
+        Self::Detect(DetectError::from(e))
+    }
+}
+
 impl From<ResidueError> for BaselineError {
     fn from(e: ResidueError) -> Self {
         Self::Detect(DetectError::Residue(e))

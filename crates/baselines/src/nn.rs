@@ -381,10 +381,10 @@ fn fit_neural<N: PerStepNet>(
     };
     let scores = pairs.iter().map(|(s, _)| det.score_inner(s)).collect::<Result<Vec<_>>>()?;
     det.threshold =
-        ekf_residue::best_f1_threshold(scores.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)))?.0;
+        detection_metrics::best_f1_threshold(scores.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)))?.0;
     let streamed = pairs.iter().map(|(s, _)| det.score_streaming_inner(s)).collect::<Result<Vec<_>>>()?;
     det.stream_threshold =
-        ekf_residue::best_f1_threshold(streamed.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)))?.0;
+        detection_metrics::best_f1_threshold(streamed.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)))?.0;
     Ok(det)
 }
 

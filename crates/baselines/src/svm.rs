@@ -288,8 +288,9 @@ impl Fit for SvmConfig {
                 };
                 let scores: Vec<Vec<f64>> =
                     pairs.iter().map(|(s, _)| det.decision(&det.standardised_features(s))).collect();
-                let (threshold, f1) =
-                    ekf_residue::best_f1_threshold(scores.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)))?;
+                let (threshold, f1) = detection_metrics::best_f1_threshold(
+                    scores.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)),
+                )?;
                 det.threshold = threshold;
                 if best.as_ref().is_none_or(|(f, _)| f1 > *f) {
                     best = Some((f1, det));

@@ -7,7 +7,8 @@
 
 use baselines::synthetic::{CHANNELS, SyntheticAttack, SyntheticFlight};
 use baselines::{CnnConfig, LstmConfig, NeuralConfig, SvmConfig};
-use ekf_residue::{Confusion, DetectError, Detector, Fit, LabelledResidues};
+use detection_metrics::Confusion;
+use ekf_residue::{DetectError, Detector, Fit, LabelledResidues};
 use quadformer_model::{TrainConfig, WindowConfig};
 
 type TestResult = Result<(), Box<dyn std::error::Error>>;

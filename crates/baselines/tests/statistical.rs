@@ -8,7 +8,8 @@
 
 use baselines::synthetic::{CHANNELS, SyntheticAttack, SyntheticFlight};
 use baselines::{BhtConfig, Chi2Config, CusumConfig, Px4GateConfig, SprtConfig, Tuning};
-use ekf_residue::{Confusion, DetectError, Detector, Fit, LabelledResidues, LabelledSeries};
+use detection_metrics::Confusion;
+use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, LabelledSeries};
 
 type TestResult = Result<(), Box<dyn std::error::Error>>;
 

@@ -106,6 +106,17 @@ pub enum DetectError {
     Residue(#[from] ResidueError),
 }
 
+impl From<detection_metrics::MetricsError> for DetectError {
+    /// A metric that cannot be computed in a fit: a NaN score is a numerical failure, anything
+    /// else unusable data.
+    fn from(e: detection_metrics::MetricsError) -> Self {
+        match e {
+            detection_metrics::MetricsError::NonFinite { .. } => Self::Numerical { what: e.to_string() },
+            other => Self::Data { msg: other.to_string() },
+        }
+    }
+}
+
 /// A filter, the time alignment or a coordinate transform failed.
 ///
 /// Input problems name the stream (`"imu"`, `"gps"`, `"attitude"`, `"vo"`), the sample index in

@@ -19,7 +19,8 @@
 //!   [`Estimator`] (GPS fusion can be skipped and re-admitted) for the online layers.
 //!
 //! ```
-//! use ekf_residue::{ResidueSeries, Confusion};
+//! use detection_metrics::Confusion;
+//! use ekf_residue::ResidueSeries;
 //! use nalgebra::DMatrix;
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let series = ResidueSeries::new(
@@ -63,9 +64,7 @@ pub mod noise_check;
 pub mod residues;
 pub mod series;
 
-pub use detector::{
-    Confusion, Detector, Fit, OnlineDecision, OnlineDetector, WindowedOnline, best_f1_threshold, check_channels,
-};
+pub use detector::{Detector, Fit, OnlineDecision, OnlineDetector, WindowedOnline, check_channels};
 pub use ekf::{CovarianceUpdate, DivergenceGuard, DynInnovation, Ekf, Innovation};
 pub use error::{DetectError, FilterError, ResidueError};
 pub use model1_filter::{ImuNoise, Model1Filter};

@@ -32,10 +32,9 @@ use std::time::Instant;
 
 use attack_inject::AttackedSample;
 use attack_inject::{AttackConfig, AttackKind};
+use detection_metrics::{Confusion, best_f1_threshold};
 use ekf_residue::residues::{FilterConfig, GPS_CHANNELS};
-use ekf_residue::{
-    Confusion, DetectError, Detector, LabelledResidues, OnlineDecision, OnlineDetector, ResidueStep, best_f1_threshold,
-};
+use ekf_residue::{DetectError, Detector, LabelledResidues, OnlineDecision, OnlineDetector, ResidueStep};
 use rayon::prelude::*;
 use resilient_fusion::estimator::ResilientConfig;
 use resilient_fusion::gates::{InnovationGate, Oracle};

@@ -9,7 +9,8 @@ pub mod cli;
 pub mod closed_loop;
 pub mod dataset;
 pub mod io;
-pub mod metrics;
+/// The detection metrics (`detection-metrics`), under the name the experiment code uses.
+pub use detection_metrics as metrics;
 pub mod plot;
 pub mod progress;
 pub mod reproduce;

@@ -11,7 +11,8 @@
 
 use std::time::Instant;
 
-use ekf_residue::{Confusion, Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
+use detection_metrics::Confusion;
+use ekf_residue::{Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
 use quadformer_model::{QuadFormerConfig, tune_allocator};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};

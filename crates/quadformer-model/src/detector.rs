@@ -15,9 +15,10 @@
 //! validation F1 is used unless one is forced. Early stopping uses the same validation F1.
 
 use candle_core::{D, Device, Tensor};
+use detection_metrics::best_f1_threshold;
 use ekf_residue::{
     DetectError, Detector, Fit, LabelledResidues, OnlineDecision, OnlineDetector, ResidueError, ResidueSeries,
-    ResidueStep, best_f1_threshold, check_channels,
+    ResidueStep, check_channels,
 };
 use serde::{Deserialize, Serialize};
 
@@ -304,7 +305,8 @@ fn calibrate(
     for mode in ScoreMode::ALL {
         let per_flight: Vec<Vec<f64>> = scored.iter().map(|(s, _)| s.mode(mode, crit_scale)).collect();
         let (threshold, valid_f1) =
-            best_f1_threshold(per_flight.iter().zip(&scored).map(|(s, (_, l))| (s.as_slice(), *l)))?;
+            best_f1_threshold(per_flight.iter().zip(&scored).map(|(s, (_, l))| (s.as_slice(), *l)))
+                .map_err(ekf_residue::DetectError::from)?;
         results.push(ModeResult { mode, threshold, valid_f1 });
     }
     Ok(Calibration { crit_scale, results })
@@ -399,7 +401,9 @@ impl Fit for QuadFormerConfig {
             .labelled()
             .map(|(series, labels)| Ok((det.score_streaming(series)?, labels)))
             .collect::<Result<Vec<_>>>()?;
-        det.stream_threshold = best_f1_threshold(streamed.iter().map(|(s, l)| (s.as_slice(), *l)))?.0;
+        det.stream_threshold = best_f1_threshold(streamed.iter().map(|(s, l)| (s.as_slice(), *l)))
+            .map_err(ekf_residue::DetectError::from)?
+            .0;
         Ok(det)
     }
 }

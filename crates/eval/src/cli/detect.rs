@@ -21,7 +21,8 @@
 use std::fmt::Write as _;
 use std::path::{Component, Path, PathBuf};
 
-use ekf_residue::{Confusion, Detector};
+use detection_metrics::Confusion;
+use ekf_residue::Detector;
 use quadformer_model::{ModelError, QuadFormerDetector};
 
 use crate::cli::CliError;

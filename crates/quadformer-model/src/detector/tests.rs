@@ -57,9 +57,9 @@ fn fitted() -> &'static QuadFormerDetector {
 }
 
 fn f1(det: &QuadFormerDetector, data: &LabelledResidues) -> f64 {
-    let mut c = ekf_residue::Confusion::default();
+    let mut c = detection_metrics::Confusion::default();
     for (s, l) in data.labelled() {
-        c.add(ekf_residue::Confusion::count(&det.detect(s).unwrap(), l));
+        c.add(detection_metrics::Confusion::count(&det.detect(s).unwrap(), l));
     }
     c.f1()
 }

@@ -1,6 +1,6 @@
 //! Evaluation metrics of a detector on labelled residue steps
 //! (docs/decisions/060-metric-definitions.md): per-step precision, recall and F1 without point
-//! adjustment (paper eq:precision, eq:recall, eq:F1, counted by [`ekf_residue::Confusion`]), the
+//! adjustment (paper eq:precision, eq:recall, eq:F1, counted by [`Confusion`]), the
 //! ROC curve and its area, PR AUC (average precision), detection delay per attack interval,
 //! false alarms per minute of clean flight, and mean ± sample standard deviation over seeds.
 //!
@@ -23,7 +23,7 @@
 
 use std::fmt;
 
-use ekf_residue::Confusion;
+use crate::confusion::Confusion;
 
 /// A metric could not be computed from the given data.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
