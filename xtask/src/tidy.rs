@@ -24,11 +24,12 @@ use crate::project_root;
 
 /// The layers of docs/ARCHITECTURE.md (the order of its Code Map), top (lowest) first: a crate
 /// may depend only on crates listed before it.
-pub(crate) const LAYERS: [&str; 9] = [
+pub(crate) const LAYERS: [&str; 10] = [
     "detection-metrics",
     "uav-dynamics",
     "ekf-residue",
     "attack-inject",
+    "nn-toolkit",
     "quadformer-model",
     "baselines",
     "resilient-fusion",

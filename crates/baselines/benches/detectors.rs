@@ -14,7 +14,7 @@ use baselines::{
 };
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ekf_residue::{Detector, Fit, LabelledResidues};
-use quadformer_model::TrainConfig;
+use nn_toolkit::TrainConfig;
 use std::hint::black_box;
 
 fn split(seeds: &[u64], n_steps: usize) -> LabelledResidues {
@@ -64,7 +64,7 @@ fn statistical(c: &mut Criterion) {
 }
 
 fn learning(c: &mut Criterion) {
-    quadformer_model::tune_allocator();
+    nn_toolkit::tune_allocator();
     let train = split(&[11, 12], 5000);
     let valid = split(&[13], 3000);
     let test = split(&[14], 10_000).flights()[0].series().clone();

@@ -23,9 +23,9 @@ pub enum BaselineError {
         /// The solver's message.
         msg: String,
     },
-    /// Windowing or training shared with `quadformer-model` failed.
+    /// Windowing or training of the shared toolkit (`nn-toolkit`) failed.
     #[error(transparent)]
-    Model(#[from] quadformer_model::ModelError),
+    Nn(#[from] nn_toolkit::NnError),
     /// The neural-network back end (candle) failed.
     #[error("candle failed in {context}: {msg}")]
     Candle {

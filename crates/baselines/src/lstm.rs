@@ -18,14 +18,14 @@
 //! and incoming gradients `∂h`, `∂c`:
 //! `∂c* = ∂c + ∂h · o (1 − tanh² c)`, `∂a_i = ∂c* g i(1 − i)`, `∂a_f = ∂c* c₋ f(1 − f)`,
 //! `∂a_g = ∂c* i (1 − g²)`, `∂a_o = ∂h tanh c · o(1 − o)`, `∂c₋ = ∂c* f`.
-//! `σ` and `tanh` are computed from `quadformer_model::vmath::exp`, the loops vectorised with
-//! AVX2 where the processor has it (`quadformer_model::vmath::vectorized`).
+//! `σ` and `tanh` are computed from `nn_toolkit::vmath::exp`, the loops vectorised with
+//! AVX2 where the processor has it (`nn_toolkit::vmath::vectorized`).
 
 use candle_core::{CpuStorage, CustomOp2, IndexOp, Layout, Shape, Tensor};
 use candle_nn::{VarBuilder, init};
-use quadformer_model::fused::{f32_slice, with_f32};
-use quadformer_model::layers::repeat_rows;
-use quadformer_model::vmath;
+use nn_toolkit::fused::{f32_slice, with_f32};
+use nn_toolkit::layers::repeat_rows;
+use nn_toolkit::vmath;
 
 /// A one-layer, forward LSTM.
 #[derive(Debug, Clone)]
@@ -39,7 +39,7 @@ pub struct LstmLayer {
 
 impl LstmLayer {
     /// Creates the variables under `vb` for inputs of `in_dim` channels and `hidden` units;
-    /// their values are set by `quadformer_model::init_vars_seeded`.
+    /// their values are set by `nn_toolkit::init_vars_seeded`.
     ///
     /// # Errors
     /// candle errors.
@@ -280,7 +280,7 @@ mod tests {
         let vb = VarBuilder::from_varmap(&vm, DType::F32, &Device::Cpu);
         let ours = LstmLayer::new(3, 5, vb.pp("lstm")).unwrap();
         let theirs = candle_nn::lstm(3, 5, LSTMConfig::default(), vb.pp("lstm")).unwrap();
-        quadformer_model::init_vars_seeded(&vm, 4).unwrap();
+        nn_toolkit::init_vars_seeded(&vm, 4).unwrap();
         // Non-zero biases, so that their path is exercised.
         let data = vm.data().lock().unwrap();
         let bias: Vec<f32> = (0..20).map(|k| (k as f32 - 10.0) / 25.0).collect();

@@ -2,11 +2,11 @@
 //! 2023 and Wang et al. 2020 in the paper's tables, fed residue windows as the paper does in
 //! Sec. V-E).
 //!
-//! Both share QUADFormer's data path and loop (`quadformer_model`): per-channel
+//! Both share QUADFormer's data path and loop (`nn_toolkit`): per-channel
 //! [`Normaliser`] fitted on the labelled training flights, [`Windows`] of `l` steps × `m`
 //! channels (`b × l × m` tensors), the seeded AdamW [`train()`] loop with early stopping on the
 //! validation BCE, [`init_vars_seeded`] for seeded initialisation, and
-//! [`quadformer_model::SeriesWindows::stitch`] to turn per-window, per-step logits into one score per step (the
+//! [`nn_toolkit::SeriesWindows::stitch`] to turn per-window, per-step logits into one score per step (the
 //! mean over the covering windows). The loss is the masked per-step binary cross-entropy with
 //! logits; the alarm threshold on the stitched logit is chosen on the validation split (best
 //! F1). They train on the labelled flights only (the same subset as QUADFormer's
@@ -25,10 +25,8 @@
 use candle_core::{D, DType, Device, Module, Tensor};
 use candle_nn::{Conv1d, Conv1dConfig, Linear, VarBuilder, VarMap};
 use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
-use quadformer_model::model::masked_bce_with_logits;
-use quadformer_model::{
-    Batch, Normaliser, TrainConfig, TrainableModel, WindowConfig, Windows, init_vars_seeded, train,
-};
+use nn_toolkit::loss::masked_bce_with_logits;
+use nn_toolkit::{Batch, Normaliser, TrainConfig, TrainableModel, WindowConfig, Windows, init_vars_seeded, train};
 use serde::{Deserialize, Serialize};
 
 use crate::common::{fit_channels, labelled_valid};
@@ -61,7 +59,7 @@ impl NeuralConfig {
         }
         let batch = self.train.batch_size.max(SCORE_BATCH) as u64;
         let elems = batch.saturating_mul(self.window.len as u64).saturating_mul(self.hidden as u64);
-        if elems > quadformer_model::detector::MAX_ACTIVATIONS {
+        if elems > nn_toolkit::train::MAX_ACTIVATIONS {
             return Err(BaselineError::Config {
                 field: "train.batch_size",
                 msg: format!(
@@ -69,7 +67,7 @@ impl NeuralConfig {
                      budget of {}",
                     self.window.len,
                     self.hidden,
-                    quadformer_model::detector::MAX_ACTIVATIONS
+                    nn_toolkit::train::MAX_ACTIVATIONS
                 ),
             });
         }
@@ -237,7 +235,7 @@ pub struct NeuralDetector<N> {
     threshold: f64,
     /// Threshold of the streaming scores, chosen on validation.
     stream_threshold: f64,
-    report: quadformer_model::TrainReport,
+    report: nn_toolkit::TrainReport,
 }
 
 /// The fitted CNN baseline.
@@ -258,7 +256,7 @@ impl<N> std::fmt::Debug for NeuralDetector<N> {
 
 impl<N: PerStepNet> NeuralDetector<N> {
     /// The training report (epochs, losses, time) of the fit.
-    pub fn train_report(&self) -> &quadformer_model::TrainReport {
+    pub fn train_report(&self) -> &nn_toolkit::TrainReport {
         &self.report
     }
 
@@ -303,7 +301,7 @@ impl<N: PerStepNet> NeuralDetector<N> {
 fn into_detect_error(e: BaselineError) -> DetectError {
     match e {
         BaselineError::Detect(d) => d,
-        BaselineError::Model(m) => m.into(),
+        BaselineError::Nn(m) => m.into(),
         other => DetectError::Backend(other.to_string()),
     }
 }
@@ -355,7 +353,7 @@ fn fit_neural<N: PerStepNet>(
     init_vars_seeded(&varmap, cfg.seed)?;
     let model = Trainable(&net, cfg.pos_weight);
     // Early stopping on the validation BCE (lower is better).
-    let mut valid_loss = |m: &Trainable<'_, N>| -> quadformer_model::Result<f64> {
+    let mut valid_loss = |m: &Trainable<'_, N>| -> nn_toolkit::Result<f64> {
         let idx: Vec<usize> = (0..valid_windows.len()).collect();
         let (mut sum, mut n) = (0.0, 0usize);
         for chunk in idx.chunks(SCORE_BATCH) {

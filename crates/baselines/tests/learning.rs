@@ -9,7 +9,7 @@ use baselines::synthetic::{CHANNELS, SyntheticAttack, SyntheticFlight};
 use baselines::{CnnConfig, LstmConfig, NeuralConfig, SvmConfig};
 use detection_metrics::Confusion;
 use ekf_residue::{DetectError, Detector, Fit, LabelledResidues};
-use quadformer_model::{TrainConfig, WindowConfig};
+use nn_toolkit::{TrainConfig, WindowConfig};
 
 type TestResult = Result<(), Box<dyn std::error::Error>>;
 

@@ -588,7 +588,7 @@ pub fn architecture_ablation(opts: &Options, data: &Dataset, with_full: bool) ->
 /// # Errors
 /// The first failing stage.
 pub fn reproduce(opts: &Options) -> Result<Vec<PathBuf>> {
-    quadformer_model::tune_allocator();
+    nn_toolkit::tune_allocator();
     let start = Instant::now();
     std::fs::create_dir_all(&opts.out)
         .map_err(|e| ReproduceError::Config(format!("{}: cannot create: {e}", opts.out.display())))?;

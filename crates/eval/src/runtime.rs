@@ -19,7 +19,7 @@ pub struct CpuRuntime {
     pub pool_threads: usize,
     /// Whether candle's kernels were made single-threaded (false: the user set the variables).
     pub single_threaded_kernels: bool,
-    /// Whether the glibc allocator tuning took effect ([`quadformer_model::tune_allocator`]).
+    /// Whether the glibc allocator tuning took effect ([`nn_toolkit::tune_allocator`]).
     pub allocator_tuned: bool,
 }
 
@@ -52,6 +52,6 @@ pub unsafe fn init_cpu_runtime() -> CpuRuntime {
     CpuRuntime {
         pool_threads: rayon::current_num_threads(),
         single_threaded_kernels: !user_set,
-        allocator_tuned: quadformer_model::tune_allocator(),
+        allocator_tuned: nn_toolkit::tune_allocator(),
     }
 }

@@ -12,11 +12,10 @@ use candle_core::{Device, Tensor};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ekf_residue::{Fit, LabelledResidues, LabelledSeries, ResidueSeries};
+use nn_toolkit::tune_allocator;
+use nn_toolkit::vmath;
 use quadformer_model::model::MinMaxTrainer;
-use quadformer_model::vmath;
-use quadformer_model::{
-    Batch, LossConfig, NetConfig, QuadFormerConfig, QuadFormerNet, ScoreMode, TrainableModel, tune_allocator,
-};
+use quadformer_model::{Batch, LossConfig, NetConfig, QuadFormerConfig, QuadFormerNet, ScoreMode, TrainableModel};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 

@@ -12,10 +12,11 @@
 use std::time::Instant;
 
 use candle_core::{D, Device, Tensor};
-use quadformer_model::fused;
-use quadformer_model::model::masked_bce_with_logits;
+use nn_toolkit::fused;
+use nn_toolkit::loss::masked_bce_with_logits;
+use nn_toolkit::tune_allocator;
 use quadformer_model::streaming::StreamingNet;
-use quadformer_model::{Batch, GradFlow, LossConfig, NetConfig, QuadFormerNet, tune_allocator};
+use quadformer_model::{Batch, GradFlow, LossConfig, NetConfig, QuadFormerNet};
 
 /// Prints the median of `n` timed calls of `f`, after a tenth as many untimed ones.
 fn time<T>(label: &str, n: usize, mut f: impl FnMut() -> candle_core::Result<T>) -> candle_core::Result<()> {
@@ -143,7 +144,7 @@ fn train() -> Result<(), Box<dyn std::error::Error>> {
     time("softmax 32x100x100 + backward (fused)", n, || fused::softmax_last_dim(&sc)?.sum_all()?.backward())?;
     let hid = var(&[b * l, 64])?;
     let norm_vm = candle_nn::VarMap::new();
-    let norm = quadformer_model::layers::Norm::new(
+    let norm = nn_toolkit::layers::Norm::new(
         64,
         candle_nn::VarBuilder::from_varmap(&norm_vm, candle_core::DType::F32, &Device::Cpu),
     )?;

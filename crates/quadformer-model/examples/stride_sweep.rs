@@ -13,7 +13,8 @@ use std::time::Instant;
 
 use detection_metrics::Confusion;
 use ekf_residue::{Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
-use quadformer_model::{QuadFormerConfig, tune_allocator};
+use nn_toolkit::tune_allocator;
+use quadformer_model::QuadFormerConfig;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 

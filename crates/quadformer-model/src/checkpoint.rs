@@ -21,7 +21,7 @@ use crate::detector::{ModeResult, QuadFormerConfig, QuadFormerDetector};
 use crate::error::{ModelError, Result};
 use crate::model::QuadFormerNet;
 use crate::streaming::StreamingNet;
-use crate::window::Normaliser;
+use nn_toolkit::window::Normaliser;
 
 /// Format name written into every manifest.
 pub const FORMAT: &str = "quadformer-checkpoint";

@@ -2,7 +2,7 @@
 //! min-max (sec:attack_detector), the scoring modes of alg:alg2 and the Anomaly Transformer,
 //! and threshold/mode choice on the validation split.
 //!
-//! Scoring modes (per window of `l` steps, then stitched per step, [`crate::window`]):
+//! Scoring modes (per window of `l` steps, then stitched per step, [`nn_toolkit::window`]):
 //! - [`ScoreMode::Alg2`]: `softmax(−TCD)` over the window, as alg:alg2 writes it;
 //! - [`ScoreMode::AnomalyTransformer`]: `softmax(−τ·TCD) ⊙ e`, `e_i = mean_c (R̂_ic − R_ic)²`,
 //!   the Anomaly Transformer criterion (temperature `τ` = 50 there);
@@ -25,8 +25,8 @@ use serde::{Deserialize, Serialize};
 use crate::error::{ModelError, Result};
 use crate::model::{GradFlow, LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet};
 use crate::streaming::StreamingNet;
-use crate::train::{TrainConfig, TrainReport, train};
-use crate::window::{Normaliser, WindowConfig, Windows};
+use nn_toolkit::train::{TrainConfig, TrainReport, train};
+use nn_toolkit::window::{Normaliser, WindowConfig, Windows};
 
 /// How per-step scores are formed from the network outputs (module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -192,10 +192,10 @@ impl QuadFormerConfig {
             if v == 0 {
                 return Err(ModelError::Config { field, msg: "must be at least 1".into() });
             }
-            if field == "score.batch_size" && v > crate::train::MAX_BATCH_SIZE {
+            if field == "score.batch_size" && v > nn_toolkit::train::MAX_BATCH_SIZE {
                 return Err(ModelError::Config {
                     field,
-                    msg: format!("{v} exceeds the budget of {}", crate::train::MAX_BATCH_SIZE),
+                    msg: format!("{v} exceeds the budget of {}", nn_toolkit::train::MAX_BATCH_SIZE),
                 });
             }
         }
@@ -203,8 +203,7 @@ impl QuadFormerConfig {
     }
 }
 
-/// Budget of the largest activation tensor of a mini-batch, in numbers (1 GiB of `f32`).
-pub const MAX_ACTIVATIONS: u64 = 1 << 28;
+pub use nn_toolkit::train::MAX_ACTIVATIONS;
 
 /// Validation result of one scoring mode.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -499,7 +498,7 @@ impl Detector for QuadFormerDetector {
 /// Streaming QUADFormer: scores each new step as the last position of the window of the `l`
 /// latest normalised residues (causal; a batch [`Detector::score`] averages over all windows
 /// covering a step, so the two differ slightly). Until `l` steps have been seen the window is
-/// padded at the front with the first step, as in [`crate::window`]. The network runs in a
+/// padded at the front with the first step, as in [`nn_toolkit::window`]. The network runs in a
 /// [`StreamingNet`], which reuses the previous windows' work on layer 1 and allocates nothing,
 /// and computes the TCD of the window only for the modes that read it.
 pub struct OnlineQuadFormer<'a> {

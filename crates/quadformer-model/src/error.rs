@@ -58,6 +58,22 @@ pub enum ModelError {
     Residue(#[from] ResidueError),
 }
 
+impl From<nn_toolkit::NnError> for ModelError {
+    /// The toolkit's errors keep their kind and message.
+    fn from(e: nn_toolkit::NnError) -> Self {
+        use nn_toolkit::NnError;
+        match e {
+            NnError::Config { field, msg } => Self::Config { field, msg },
+            NnError::Data { msg } => Self::Data { msg },
+            NnError::Candle(c) => Self::Candle(c),
+            NnError::Numerical { what } => Self::Numerical { what },
+            NnError::Detect(d) => Self::Detect(d),
+            NnError::Residue(r) => Self::Residue(r),
+            other => Self::Data { msg: other.to_string() },
+        }
+    }
+}
+
 impl From<ModelError> for DetectError {
     fn from(e: ModelError) -> Self {
         match e {

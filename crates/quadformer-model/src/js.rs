@@ -11,15 +11,15 @@
 //! Composed from candle's element-wise ops the divergence and its gradient took about 20 % of
 //! a training step: a dozen passes over every `b × heads × l × l` map, each allocating its
 //! result and, backwards, a zero-filled gradient. The kernel makes one vectorised pass forward
-//! and one backward ([`crate::vmath`]). `p` may be shared by the batch (leading axis 1, the
+//! and one backward ([`nn_toolkit::vmath`]). `p` may be shared by the batch (leading axis 1, the
 //! TPC prior); its gradient is then summed over the batch. Each input's gradient is passed,
 //! stopped or reversed ([`GradFlow`]), which is how the min-max phases split the discrepancy.
 
 use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 
-use crate::fused::{f32_slice, with_f32};
 use crate::model::GradFlow;
-use crate::vmath;
+use nn_toolkit::fused::{f32_slice, with_f32};
+use nn_toolkit::vmath;
 
 /// Additive guard of the logarithms.
 pub const JS_EPS: f32 = 1e-8;
@@ -317,7 +317,7 @@ mod tests {
         ) {
             let p = distributions(&raw_p, &[40]).to_vec1::<f32>().unwrap();
             let (mut q, mut scratch, mut ent_q) = (scores.clone(), vec![0f32; 40], [0f32]);
-            crate::fused::softmax_rows(&mut q, 40, Some((&mut ent_q, &mut scratch)));
+            nn_toolkit::fused::softmax_rows(&mut q, 40, Some((&mut ent_q, &mut scratch)));
             let ln_p = ln_eps(&p);
             let ent_p = vmath::dot(&p, &ln_p);
             mixture_entropy_terms(&p, &q, &mut scratch);

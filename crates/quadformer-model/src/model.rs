@@ -3,7 +3,7 @@
 //! eq:cross_layer_attention), the reconstruction and classification heads, the
 //! Temporal-Contextual Disparity (TCD, Jensen–Shannon) and the min-max losses.
 //!
-//! Shapes: input `x` is `b × l × m` (normalised residues, [`crate::window`]); hidden states are
+//! Shapes: input `x` is `b × l × m` (normalised residues, [`nn_toolkit::window`]); hidden states are
 //! kept flat as `(b·l) × d_model`; attention maps `T` and `C` are `b × heads × l × l`; TCD,
 //! logits and per-step scores are `b × l`.
 //!
@@ -13,7 +13,7 @@
 //! for `h > 1` (DCM; switchable off = own keys); `T_{ij} = exp(−γ_i |j−i|^p) / Σ_k …` with a
 //! learnable width `γ` per layer, head and position (TPC; switchable off = the Anomaly
 //! Transformer's Gaussian prior with an input-dependent width). The layer norm, softmax and GELU
-//! are the kernels of [`crate::fused`], which have backward passes (candle 0.11's fused
+//! are the kernels of [`nn_toolkit::fused`], which have backward passes (candle 0.11's fused
 //! `LayerNorm` and `softmax_last_dim` have none; for the layer norm see huggingface/candle issues
 //! #3011 and #3752). The exponent of the prior is clamped at [`PRIOR_EXP_FLOOR`] so that
 //! far-apart steps never produce subnormal results (slow on this CPU) while their weight stays
@@ -28,11 +28,12 @@ use candle_nn::{Init, VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
-use crate::fused::{gelu, softmax_last_dim};
-use crate::init::init_vars_seeded;
 use crate::js::js_divergence_with;
-use crate::layers::{Dense, Norm};
-use crate::window::Batch;
+use nn_toolkit::fused::{gelu, softmax_last_dim};
+use nn_toolkit::init::init_vars_seeded;
+use nn_toolkit::layers::{Dense, Norm};
+use nn_toolkit::loss::masked_bce_with_logits;
+use nn_toolkit::window::Batch;
 
 /// Lower clamp of the prior's exponent: `exp(−50) ≈ 2e−22` is still a normal `f32`.
 pub const PRIOR_EXP_FLOOR: f64 = -50.0;
@@ -633,28 +634,6 @@ impl QuadFormerNet {
     }
 }
 
-/// BCE with logits and positive-class weight `w`, `(1 − y)·softplus(z) + w·y·softplus(−z)`
-/// (PyTorch's `BCEWithLogitsLoss(pos_weight)`), averaged over the masked steps; `w = 1` is the
-/// plain BCE `relu(z) − z·y + ln(1 + e^{−|z|})`.
-///
-/// # Errors
-/// candle errors.
-pub fn masked_bce_with_logits(
-    z: &Tensor,
-    y: &Tensor,
-    mask: &Tensor,
-    n_labelled: usize,
-    pos_weight: f64,
-) -> candle_core::Result<Tensor> {
-    let softplus = (z.relu()? + (z.abs()?.neg()?.exp()? + 1.0)?.log()?)?;
-    let bce = if pos_weight == 1.0 {
-        (softplus - (z * y)?)?
-    } else {
-        ((softplus * y.affine(pos_weight - 1.0, 1.0)?)? - (z * y)?.affine(pos_weight, 0.0)?)?
-    };
-    (bce * mask)?.sum_all()? / n_labelled.max(1) as f64
-}
-
 /// `|j − i|^p` (`1 × l × l`) and `|j − i|²` (`1 × 1 × l × l`).
 fn distance_matrices(len: usize, p: f64) -> candle_core::Result<(Tensor, Tensor)> {
     let mut dp = Vec::with_capacity(len * len);
@@ -682,7 +661,7 @@ fn positional_encoding(len: usize, d: usize) -> candle_core::Result<Tensor> {
     Tensor::from_vec(pe, (1, len, d), &Device::Cpu)
 }
 
-/// The network paired with its loss weights, as trained by [`crate::train::train`].
+/// The network paired with its loss weights, as trained by [`nn_toolkit::train::train`].
 pub struct MinMaxTrainer<'a> {
     /// The network.
     pub net: &'a QuadFormerNet,
@@ -690,7 +669,7 @@ pub struct MinMaxTrainer<'a> {
     pub loss: LossConfig,
 }
 
-impl crate::train::TrainableModel for MinMaxTrainer<'_> {
+impl nn_toolkit::train::TrainableModel for MinMaxTrainer<'_> {
     fn n_phases(&self) -> usize {
         match self.loss.min_max {
             MinMax::Summed => 1,

@@ -3,8 +3,8 @@
 //! updated one residue at a time with the work and memory fixed in advance.
 //!
 //! It computes what [`QuadFormerNet::forward_steps`] with [`Steps::Last`] computes, from the
-//! same weights, in plain `f32` buffers ([`crate::matmul`], the element-wise kernels of
-//! [`crate::fused`] and [`crate::js`]), and does less work in seven ways, exact but for rounding:
+//! same weights, in plain `f32` buffers ([`nn_toolkit::matmul`], the element-wise kernels of
+//! [`nn_toolkit::fused`] and [`crate::js`]), and does less work in seven ways, exact but for rounding:
 //!
 //! 1. **Layer 1 is linear in each residue.** Its input is `h⁰ᵢ = xᵢ W_e + b_e + PEᵢ` and its
 //!    projections `Q¹ᵢ = h⁰ᵢ W_Q + b_Q` (likewise `K¹`, `V¹`), so each splits into a part of
@@ -51,17 +51,17 @@
 //! Gaussian prior of the "TPC off" ablation depends on the input and is rebuilt per window.
 //!
 //! Until `l` residues have been seen the window is padded at the front with the first one, as
-//! in [`crate::window`].
+//! in [`nn_toolkit::window`].
 
 use candle_core::Tensor;
 
 use crate::error::{ModelError, Result};
-use crate::fused::{add_bias_row, gelu_value, layer_norm_row, softmax_rows};
 use crate::js::mixture_entropy_terms;
-use crate::layers::LN_EPS;
-use crate::matmul::{MatMut, MatRef, matmul};
 use crate::model::{ClassInput, PRIOR_EXP_FLOOR, Prior, QuadFormerNet};
-use crate::vmath;
+use nn_toolkit::fused::{add_bias_row, gelu_value, layer_norm_row, softmax_rows};
+use nn_toolkit::layers::LN_EPS;
+use nn_toolkit::matmul::{MatMut, MatRef, matmul};
+use nn_toolkit::vmath;
 
 /// A dense layer `y = x W + b` with `W` stored `in × out` (the transpose of the checkpoint's
 /// `weight`).
@@ -586,7 +586,7 @@ impl StreamingNet {
             softmax_rows(&mut attn[..heads * q_rows * l], l, entropy);
             // Attention output of the `out_rows` newest rows, heads side by side.
             let c_out = |hd: usize| -> Result<MatRef<'_>> {
-                MatRef::rows(&attn[(hd * q_rows + q_rows - out_rows) * l..(hd + 1) * q_rows * l], out_rows, l)
+                Ok(MatRef::rows(&attn[(hd * q_rows + q_rows - out_rows) * l..(hd + 1) * q_rows * l], out_rows, l)?)
             };
             if idx == 0 || out_rows == l {
                 let (v, v_rs, v_off) = if idx == 0 { (&s.x0[..], w_ring, 3 * d) } else { (&s.v[..], d, 0) };

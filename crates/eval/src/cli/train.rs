@@ -449,11 +449,11 @@ fn check_fields(m: &ModelManifest) -> Result<(), String> {
     if m.channels.is_empty() {
         return Err("channels: empty".into());
     }
-    if m.channels.len() > quadformer_model::window::MAX_CHANNELS {
+    if m.channels.len() > nn_toolkit::window::MAX_CHANNELS {
         return Err(format!(
             "channels: {} exceed the budget of {}",
             m.channels.len(),
-            quadformer_model::window::MAX_CHANNELS
+            nn_toolkit::window::MAX_CHANNELS
         ));
     }
     for (i, c) in m.channels.iter().enumerate() {

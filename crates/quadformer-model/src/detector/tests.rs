@@ -261,7 +261,7 @@ fn detectors_and_configs_are_send_sync() {
     fn check<T: Send + Sync>() {}
     check::<QuadFormerDetector>();
     check::<QuadFormerConfig>();
-    check::<crate::window::Windows>();
+    check::<nn_toolkit::window::Windows>();
 }
 
 /// Every JSON pointer of `v`'s leaves and containers.

@@ -112,7 +112,7 @@ fn every_parameter_receives_gradient() {
     for (prior, dcm, class_input) in cases {
         let net = QuadFormerNet::new(&NetConfig { class_input, ..tiny(prior, dcm) }, 10, 3, 5).unwrap();
         let trainer = MinMaxTrainer { net: &net, loss: LossConfig::default() };
-        let loss = crate::train::TrainableModel::loss(&trainer, &batch(3, 10, 3, 2), 0).unwrap();
+        let loss = nn_toolkit::train::TrainableModel::loss(&trainer, &batch(3, 10, 3, 2), 0).unwrap();
         let grads = loss.backward().unwrap();
         for (name, var) in vars(&net) {
             // With DCM the last layer's keys feed no later layer and its queries attend to the

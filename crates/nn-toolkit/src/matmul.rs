@@ -1,5 +1,5 @@
 //! Bounds-checked matrix products on strided `f32` views of slices, for the streaming engine
-//! ([`crate::streaming`]): the `gemm` crate's kernel (the one candle's CPU `matmul` calls)
+//! (`quadformer_model::streaming`): the `gemm` crate's kernel (the one candle's CPU `matmul` calls)
 //! writing into a caller-owned buffer, so that a streaming decision allocates and zero-fills
 //! nothing.
 //!
@@ -8,17 +8,17 @@
 //! borrow checker keeps the destination apart from the inputs. Those are the whole of the
 //! kernel's safety requirements, and the one `unsafe` block of this module relies on them.
 
-use crate::error::{ModelError, Result};
+use crate::error::{NnError, Result};
 
 /// Checks that a `rows × cols` view with strides `rs`, `cs` fits in `len` elements.
 fn fits(what: &str, len: usize, rows: usize, cols: usize, rs: usize, cs: usize) -> Result<()> {
     if rows == 0 || cols == 0 {
-        return Err(ModelError::Data { msg: format!("matmul: empty {what} view {rows} × {cols}") });
+        return Err(NnError::Data { msg: format!("matmul: empty {what} view {rows} × {cols}") });
     }
     let last = (rows - 1).checked_mul(rs).zip((cols - 1).checked_mul(cs)).and_then(|(a, b)| a.checked_add(b));
     match last {
         Some(i) if i < len && isize::try_from(rs.max(cs)).is_ok() => Ok(()),
-        _ => Err(ModelError::Data {
+        _ => Err(NnError::Data {
             msg: format!("matmul: {what} view {rows} × {cols} (strides {rs}, {cs}) overruns its {len} elements"),
         }),
     }
@@ -38,7 +38,7 @@ impl<'a> MatRef<'a> {
     /// A strided view.
     ///
     /// # Errors
-    /// [`ModelError::Data`] when the view is empty or reaches past `data`.
+    /// [`NnError::Data`] when the view is empty or reaches past `data`.
     pub fn new(data: &'a [f32], rows: usize, cols: usize, rs: usize, cs: usize) -> Result<Self> {
         fits("input", data.len(), rows, cols, rs, cs)?;
         Ok(Self { data, rows, cols, rs, cs })
@@ -72,7 +72,7 @@ impl<'a> MatMut<'a> {
     /// A strided view.
     ///
     /// # Errors
-    /// [`ModelError::Data`] when the view is empty or reaches past `data`.
+    /// [`NnError::Data`] when the view is empty or reaches past `data`.
     pub fn new(data: &'a mut [f32], rows: usize, cols: usize, rs: usize, cs: usize) -> Result<Self> {
         fits("output", data.len(), rows, cols, rs, cs)?;
         Ok(Self { data, rows, cols, rs, cs })
@@ -90,11 +90,11 @@ impl<'a> MatMut<'a> {
 /// `dst ← scale·a·b`, or `dst ← dst + scale·a·b` when `accumulate`.
 ///
 /// # Errors
-/// [`ModelError::Data`] when the shapes do not agree.
+/// [`NnError::Data`] when the shapes do not agree.
 #[allow(unsafe_code)]
 pub fn matmul(dst: MatMut<'_>, a: MatRef<'_>, b: MatRef<'_>, scale: f32, accumulate: bool) -> Result<()> {
     if a.cols != b.rows || dst.rows != a.rows || dst.cols != b.cols {
-        return Err(ModelError::Data {
+        return Err(NnError::Data {
             msg: format!(
                 "matmul: ({} × {}) · ({} × {}) into {} × {}",
                 a.rows, a.cols, b.rows, b.cols, dst.rows, dst.cols

@@ -22,7 +22,7 @@ use candle_core::{Device, Tensor};
 use ekf_residue::{LabelledResidues, ResidueSeries, ResidueStep};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{ModelError, Result};
+use crate::error::{NnError, Result};
 
 /// Smallest standard deviation treated as non-zero; a constant channel is divided by 1.
 const STD_FLOOR: f64 = 1e-12;
@@ -118,16 +118,16 @@ impl WindowConfig {
     /// Checks `2 ≤ len ≤` [`MAX_WINDOW_LEN`] and `1 ≤ stride`.
     ///
     /// # Errors
-    /// [`ModelError::Config`] naming the field.
+    /// [`NnError::Config`] naming the field.
     pub fn check(&self) -> Result<()> {
         if !(2..=MAX_WINDOW_LEN).contains(&self.len) {
-            return Err(ModelError::Config {
+            return Err(NnError::Config {
                 field: "window.len",
                 msg: format!("must be between 2 and {MAX_WINDOW_LEN}, got {}", self.len),
             });
         }
         if self.stride == 0 {
-            return Err(ModelError::Config { field: "window.stride", msg: "must be at least 1".into() });
+            return Err(NnError::Config { field: "window.stride", msg: "must be at least 1".into() });
         }
         Ok(())
     }
@@ -153,12 +153,12 @@ impl Normaliser {
     /// Fits mean and standard deviation of every feature over all steps of `train`.
     ///
     /// # Errors
-    /// [`ModelError::Data`] if `train` has no steps.
+    /// [`NnError::Data`] if `train` has no steps.
     pub fn fit(train: &LabelledResidues, features: Features) -> Result<Self> {
         let m = train.channels().len();
         let n = train.n_steps();
         if n == 0 || m == 0 {
-            return Err(ModelError::Data { msg: "cannot fit a normaliser on an empty training split".into() });
+            return Err(NnError::Data { msg: "cannot fit a normaliser on an empty training split".into() });
         }
         let dim = features.dim(m);
         let mut sum = vec![0.0; dim];
@@ -221,16 +221,16 @@ impl Normaliser {
     /// finite positive standard deviation per feature.
     ///
     /// # Errors
-    /// [`ModelError::Data`] naming what is wrong.
+    /// [`NnError::Data`] naming what is wrong.
     pub fn check(&self) -> Result<()> {
         if self.channels.len() > MAX_CHANNELS {
-            return Err(ModelError::Data {
+            return Err(NnError::Data {
                 msg: format!("normaliser: {} channels exceed the budget of {MAX_CHANNELS}", self.channels.len()),
             });
         }
         let dim = self.dim();
         if self.mean.len() != dim || self.std.len() != dim {
-            return Err(ModelError::Data {
+            return Err(NnError::Data {
                 msg: format!(
                     "normaliser: {:?} features of {} channels need {dim} means and standard deviations, got {} and {}",
                     self.features,
@@ -241,7 +241,7 @@ impl Normaliser {
             });
         }
         if self.mean.iter().any(|v| !v.is_finite()) || self.std.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
-            return Err(ModelError::Data {
+            return Err(NnError::Data {
                 msg: "normaliser: means must be finite and standard deviations finite and positive".into(),
             });
         }
@@ -251,7 +251,7 @@ impl Normaliser {
     /// Checks that the series has the fitted channels.
     ///
     /// # Errors
-    /// [`ModelError::Detect`] with a channel mismatch.
+    /// [`NnError::Detect`] with a channel mismatch.
     pub fn check_series(&self, series: &ResidueSeries) -> Result<()> {
         Ok(ekf_residue::check_channels(&self.channels, series)?)
     }
@@ -293,11 +293,11 @@ impl SeriesWindows {
     /// per-window-step scores `window_scores` (`starts.len() × l`, row-major).
     ///
     /// # Errors
-    /// [`ModelError::Data`] if `window_scores` has the wrong length.
+    /// [`NnError::Data`] if `window_scores` has the wrong length.
     pub fn stitch(&self, window_scores: &[f32]) -> Result<Vec<f64>> {
         let l = self.len;
         if window_scores.len() != self.starts.len() * l {
-            return Err(ModelError::Data {
+            return Err(NnError::Data {
                 msg: format!("stitch: expected {} window scores, got {}", self.starts.len() * l, window_scores.len()),
             });
         }
@@ -348,7 +348,7 @@ impl Windows {
     /// All training windows of a split, `cfg.stride` apart within each flight.
     ///
     /// # Errors
-    /// [`ModelError::Config`] for a bad `cfg`; channel mismatch with `norm`.
+    /// [`NnError::Config`] for a bad `cfg`; channel mismatch with `norm`.
     pub fn from_split(data: &LabelledResidues, norm: &Normaliser, cfg: &WindowConfig) -> Result<Self> {
         cfg.check()?;
         let mut out = Self::empty(cfg.len, norm.dim());
@@ -361,7 +361,7 @@ impl Windows {
     /// Appends the windows of one series (labels optional) and returns where they start.
     ///
     /// # Errors
-    /// Channel mismatch with `norm`; [`ModelError::Data`] if the labels have the wrong length.
+    /// Channel mismatch with `norm`; [`NnError::Data`] if the labels have the wrong length.
     pub fn push_series(
         &mut self,
         series: &ResidueSeries,
@@ -371,14 +371,14 @@ impl Windows {
     ) -> Result<SeriesWindows> {
         norm.check_series(series)?;
         if norm.dim() != self.dim {
-            return Err(ModelError::Data {
+            return Err(NnError::Data {
                 msg: format!("windows have {} channels, normaliser {}", self.dim, norm.dim()),
             });
         }
         if let Some(l) = labels
             && l.len() != series.len()
         {
-            return Err(ModelError::Data { msg: format!("{} labels for {} steps", l.len(), series.len()) });
+            return Err(NnError::Data { msg: format!("{} labels for {} steps", l.len(), series.len()) });
         }
         self.mirror = norm.mirror_centres();
         let (l, m) = (self.len, self.dim);
@@ -460,7 +460,7 @@ impl Windows {
     /// The windows `idx` as a [`Batch`] on `device`.
     ///
     /// # Errors
-    /// [`ModelError::Data`] for an index past the end; [`ModelError::Candle`].
+    /// [`NnError::Data`] for an index past the end; [`NnError::Candle`].
     pub fn batch(&self, idx: &[usize], device: &Device) -> Result<Batch> {
         self.batch_mirrored(idx, &[], device)
     }
@@ -482,7 +482,7 @@ impl Windows {
         let mut mask = Vec::with_capacity(b * l);
         for (i, &w) in idx.iter().enumerate() {
             if w >= n {
-                return Err(ModelError::Data { msg: format!("window index {w} out of range ({n} windows)") });
+                return Err(NnError::Data { msg: format!("window index {w} out of range ({n} windows)") });
             }
             let start = x.len();
             x.extend_from_slice(&self.x[w * l * m..(w + 1) * l * m]);

@@ -15,7 +15,7 @@ use candle_core::Tensor;
 use candle_nn::{Init, VarBuilder};
 
 /// Layer-norm variance guard (PyTorch default).
-pub(crate) const LN_EPS: f32 = 1e-5;
+pub const LN_EPS: f32 = 1e-5;
 
 /// `v` (any shape, `d` elements) repeated over `n` rows: `n × d`, equal to
 /// `v.reshape((1, d)).broadcast_as((n, d))`, with a gradient computed as a matrix product
@@ -36,7 +36,7 @@ pub struct Dense {
 
 impl Dense {
     /// Creates `weight` (`out × in`) and `bias` (`out`) under `vb`; their values are set by
-    /// [`crate::init_vars_seeded`].
+    /// [`crate::init::init_vars_seeded`].
     ///
     /// # Errors
     /// candle errors.
@@ -119,7 +119,7 @@ mod tests {
         let vb = VarBuilder::from_varmap(&vm, DType::F32, &Device::Cpu);
         let dense = Dense::new(5, 3, vb.pp("d")).unwrap();
         let norm = Norm::new(3, vb.pp("n")).unwrap();
-        crate::init_vars_seeded(&vm, 3).unwrap();
+        crate::init::init_vars_seeded(&vm, 3).unwrap();
         let data = vm.data().lock().unwrap();
         data["d.bias"].set(&Tensor::new(&[0.1f32, -0.2, 0.3], &Device::Cpu).unwrap()).unwrap();
         data["n.weight"].set(&Tensor::new(&[1.5f32, 0.5, -1.0], &Device::Cpu).unwrap()).unwrap();

@@ -21,16 +21,16 @@ use candle_nn::VarMap;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 
-use crate::error::{ModelError, Result};
+use crate::error::{NnError, Result};
 
 /// Overwrites every variable of `varmap` from a generator seeded with `seed` (rule in the
 /// module docs).
 ///
 /// # Errors
-/// [`ModelError::Candle`] if a variable cannot be set, [`ModelError::Data`] if the map's lock
+/// [`NnError::Candle`] if a variable cannot be set, [`NnError::Data`] if the map's lock
 /// is poisoned.
 pub fn init_vars_seeded(varmap: &VarMap, seed: u64) -> Result<()> {
-    let data = varmap.data().lock().map_err(|_| ModelError::Data { msg: "variable map lock poisoned".into() })?;
+    let data = varmap.data().lock().map_err(|_| NnError::Data { msg: "variable map lock poisoned".into() })?;
     let mut names: Vec<&String> = data.keys().collect();
     names.sort();
     let mut rng = StdRng::seed_from_u64(seed);

@@ -76,16 +76,16 @@ pub fn layer_norm(x: &Tensor, gain: &Tensor, bias: &Tensor, eps: f32) -> candle_
 }
 
 /// The erf GELU of one value. Like every kernel below it is inlined into its caller, which
-/// runs it inside [`vmath::vectorized`]; the streaming engine ([`crate::streaming`]) calls
+/// runs it inside [`vmath::vectorized`]; the streaming engine (`quadformer_model::streaming`) calls
 /// the same kernels, so both paths compute the same element-wise values.
 #[inline(always)]
-pub(crate) fn gelu_value(v: f32) -> f32 {
+pub fn gelu_value(v: f32) -> f32 {
     (vmath::erf(v * std::f32::consts::FRAC_1_SQRT_2) + 1.0) * 0.5 * v
 }
 
 /// `row + bias`, in place.
 #[inline(always)]
-pub(crate) fn add_bias_row(row: &mut [f32], bias: &[f32]) {
+pub fn add_bias_row(row: &mut [f32], bias: &[f32]) {
     for (yj, bj) in row.iter_mut().zip(bias) {
         *yj += bj;
     }
@@ -97,7 +97,7 @@ pub(crate) fn add_bias_row(row: &mut [f32], bias: &[f32]) {
 /// `Σⱼ cⱼ ln cⱼ = Σⱼ cⱼ (sⱼ − max s) − ln Σⱼ exp(sⱼ − max s)` to `ent`, without a logarithm per
 /// entry; `shifted` (a block's size) is scratch.
 #[inline(always)]
-pub(crate) fn softmax_rows(map: &mut [f32], len: usize, mut entropy: Option<(&mut [f32], &mut [f32])>) {
+pub fn softmax_rows(map: &mut [f32], len: usize, mut entropy: Option<(&mut [f32], &mut [f32])>) {
     let rows = vmath::row_block(len);
     for (b, block) in map.chunks_mut(rows * len).enumerate() {
         for row in block.chunks_exact_mut(len) {
@@ -137,7 +137,7 @@ fn centre_row(row: &mut [f32], eps: f32) -> f32 {
 
 /// Layer norm of one row with gain `γ` and bias `β`, in place.
 #[inline(always)]
-pub(crate) fn layer_norm_row(row: &mut [f32], gain: &[f32], bias: &[f32], eps: f32) {
+pub fn layer_norm_row(row: &mut [f32], gain: &[f32], bias: &[f32], eps: f32) {
     let inv_sigma = centre_row(row, eps);
     for ((yj, &gj), &bj) in row.iter_mut().zip(gain).zip(bias) {
         *yj = *yj * inv_sigma * gj + bj;

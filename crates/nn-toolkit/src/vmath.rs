@@ -1,5 +1,5 @@
 //! Element-wise `exp`, `ln` and `erf` of `f32` written for the compiler's vectoriser, the sums
-//! of the kernels of [`crate::fused`] and [`crate::js`], and [`vectorized`], which runs a loop
+//! of the kernels of [`crate::fused`] and `quadformer_model::js`, and [`vectorized`], which runs a loop
 //! with the widest vector instructions the processor has.
 //!
 //! The standard library's `f32::exp`/`ln` call the C library one element at a time, and
@@ -14,7 +14,7 @@
 //! - `ln_fast` replaces the Cephes polynomial by one division and a cubic in `s²`
 //!   (`ln m = 2 atanh s`, `s = (m − 1)/(m + 1)`): about four fifths of the time of `ln`, within
 //!   1.4 units in the last place of the exact value (`ln`: 0.7; both measured over the positive
-//!   `f32` range). The streaming engine's TCD uses it ([`crate::streaming`]); training and batch
+//!   `f32` range). The streaming engine's TCD uses it (`quadformer_model::streaming`); training and batch
 //!   scoring use `ln`.
 //! - `erf` is Abramowitz & Stegun 7.1.26,
 //!   `erf(x) = 1 − (a₁t + a₂t² + a₃t³ + a₄t⁴ + a₅t⁵) e^{−x²}`, `t = 1/(1 + p|x|)`, odd in `x`,
@@ -192,7 +192,7 @@ pub fn max(xs: &[f32]) -> f32 {
 /// eight-lane vectors (`8 / gcd(len, 8)`): a loop over the block then leaves no remainder to
 /// scalar code, where a loop over each row would (4 of 100 values, at several times the cost
 /// per value).
-pub(crate) fn row_block(len: usize) -> usize {
+pub fn row_block(len: usize) -> usize {
     let (mut a, mut b) = (len, 8);
     while b != 0 {
         (a, b) = (b, a % b);

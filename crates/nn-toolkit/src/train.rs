@@ -21,8 +21,11 @@ use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{ModelError, Result};
+use crate::error::{NnError, Result};
 use crate::window::{Batch, Windows};
+
+/// Budget of the largest activation tensor of a mini-batch, in numbers (1 GiB of `f32`).
+pub const MAX_ACTIVATIONS: u64 = 1 << 28;
 
 /// A model trainable by [`train`].
 pub trait TrainableModel {
@@ -102,9 +105,9 @@ impl TrainConfig {
     /// Checks that sizes are positive and rates finite and non-negative.
     ///
     /// # Errors
-    /// [`ModelError::Config`] naming the field.
+    /// [`NnError::Config`] naming the field.
     pub fn check(&self) -> Result<()> {
-        let bad = |field: &'static str, msg: &str| Err(ModelError::Config { field, msg: msg.into() });
+        let bad = |field: &'static str, msg: &str| Err(NnError::Config { field, msg: msg.into() });
         if self.epochs == 0 {
             return bad("train.epochs", "must be at least 1");
         }
@@ -112,7 +115,7 @@ impl TrainConfig {
             return bad("train.batch_size", "must be at least 1");
         }
         if self.batch_size > MAX_BATCH_SIZE {
-            return Err(ModelError::Config {
+            return Err(NnError::Config {
                 field: "train.batch_size",
                 msg: format!("{} exceeds the budget of {MAX_BATCH_SIZE}", self.batch_size),
             });
@@ -179,12 +182,12 @@ impl TrainReport {
 
 /// Copies of all variables of `varmap`, by name.
 fn snapshot(varmap: &VarMap) -> Result<Vec<(String, Tensor)>> {
-    let data = varmap.data().lock().map_err(|_| ModelError::Data { msg: "variable map lock poisoned".into() })?;
+    let data = varmap.data().lock().map_err(|_| NnError::Data { msg: "variable map lock poisoned".into() })?;
     data.iter().map(|(k, v)| Ok((k.clone(), v.as_tensor().copy()?))).collect()
 }
 
 fn restore(varmap: &VarMap, snap: &[(String, Tensor)]) -> Result<()> {
-    let data = varmap.data().lock().map_err(|_| ModelError::Data { msg: "variable map lock poisoned".into() })?;
+    let data = varmap.data().lock().map_err(|_| NnError::Data { msg: "variable map lock poisoned".into() })?;
     for (name, t) in snap {
         if let Some(var) = data.get(name) {
             var.set(t)?;
@@ -231,19 +234,51 @@ fn epoch_windows(windows: &Windows, per_epoch: usize, share: Option<f64>, rng: &
 /// calling `valid(model)` after every epoch; lower validation metric is better.
 ///
 /// # Errors
-/// [`ModelError::Config`] for a bad config, [`ModelError::Data`] for no windows,
-/// [`ModelError::Numerical`] naming epoch and step for a non-finite loss, and any error of
+/// [`NnError::Config`] for a bad config, [`NnError::Data`] for no windows,
+/// [`NnError::Numerical`] naming epoch and step for a non-finite loss, and any error of
 /// `valid` or candle.
-pub fn train<M: TrainableModel + ?Sized>(
+pub fn train<M: TrainableModel + ?Sized, E: From<NnError>>(
     model: &M,
     varmap: &VarMap,
     windows: &Windows,
     cfg: &TrainConfig,
-    valid: &mut dyn FnMut(&M) -> Result<f64>,
-) -> Result<TrainReport> {
+    valid: &mut dyn FnMut(&M) -> std::result::Result<f64, E>,
+) -> std::result::Result<TrainReport, E> {
+    train_loop(model, varmap, windows, cfg, valid).map_err(|e| match e {
+        Failure::Toolkit(e) => E::from(e),
+        Failure::Valid(e) => e,
+    })
+}
+
+/// Why [`train_loop`] stopped: the toolkit failed, or the caller's validation metric did.
+enum Failure<E> {
+    Toolkit(NnError),
+    Valid(E),
+}
+
+impl<E> From<NnError> for Failure<E> {
+    fn from(e: NnError) -> Self {
+        Self::Toolkit(e)
+    }
+}
+
+impl<E> From<candle_core::Error> for Failure<E> {
+    fn from(e: candle_core::Error) -> Self {
+        Self::Toolkit(NnError::Candle(e))
+    }
+}
+
+/// [`train`]'s loop, with the caller's error kept apart.
+fn train_loop<M: TrainableModel + ?Sized, E>(
+    model: &M,
+    varmap: &VarMap,
+    windows: &Windows,
+    cfg: &TrainConfig,
+    valid: &mut dyn FnMut(&M) -> std::result::Result<f64, E>,
+) -> std::result::Result<TrainReport, Failure<E>> {
     cfg.check()?;
     if windows.is_empty() {
-        return Err(ModelError::Data { msg: "no training windows".into() });
+        return Err(NnError::Data { msg: "no training windows".into() }.into());
     }
     let device = Device::Cpu;
     let params = ParamsAdamW { lr: cfg.lr, weight_decay: cfg.weight_decay, ..ParamsAdamW::default() };
@@ -286,9 +321,10 @@ pub fn train<M: TrainableModel + ?Sized>(
                 let loss = model.loss(&batch, phase)?;
                 let v = f64::from(loss.to_scalar::<f32>()?);
                 if !v.is_finite() {
-                    return Err(ModelError::Numerical {
+                    return Err(NnError::Numerical {
                         what: format!("loss {v} at epoch {epoch}, batch {b}, phase {phase}"),
-                    });
+                    }
+                    .into());
                 }
                 if phase == 0 {
                     loss_sum += v;
@@ -301,7 +337,7 @@ pub fn train<M: TrainableModel + ?Sized>(
         }
         let train_seconds = t0.elapsed().as_secs_f64();
         report.train_seconds += train_seconds;
-        let valid_metric = valid(model)?;
+        let valid_metric = valid(model).map_err(Failure::Valid)?;
         let stats =
             EpochStats { epoch, train_loss: loss_sum / batches_per_epoch.max(1) as f64, valid_metric, train_seconds };
         let line = format!("epoch {epoch}: train loss {:.5}, valid metric {:.5}", stats.train_loss, stats.valid_metric);
