@@ -17,9 +17,20 @@
 
 use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 
-use crate::model::GradFlow;
 use nn_toolkit::fused::{f32_slice, with_f32};
 use nn_toolkit::vmath;
+
+/// How the gradient of a loss term reaches one of its inputs (the min-max split of
+/// Anomaly Transformer's association discrepancy).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GradFlow {
+    /// The gradient passes unchanged.
+    Pass,
+    /// Stop-gradient (`detach`): the input is a constant.
+    Stop,
+    /// The gradient passes with its sign flipped (a gradient-reversal layer).
+    Reverse,
+}
 
 /// Additive guard of the logarithms.
 pub const JS_EPS: f32 = 1e-8;

@@ -28,6 +28,7 @@ use candle_nn::{Init, VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
+pub use crate::js::GradFlow;
 use crate::js::js_divergence_with;
 use nn_toolkit::fused::{gelu, softmax_last_dim};
 use nn_toolkit::init::init_vars_seeded;
@@ -258,18 +259,6 @@ pub struct Output {
     pub prior: Vec<Tensor>,
     /// Attention `Cʰ` per layer, `b × heads × l × l`.
     pub attn: Vec<Tensor>,
-}
-
-/// How the gradient of a loss term reaches one of its inputs (the min-max split of
-/// Anomaly Transformer's association discrepancy).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum GradFlow {
-    /// The gradient passes unchanged.
-    Pass,
-    /// Stop-gradient (`detach`): the input is a constant.
-    Stop,
-    /// The gradient passes with its sign flipped (a gradient-reversal layer).
-    Reverse,
 }
 
 /// Which steps of a window the forward pass produces outputs for.
