@@ -193,6 +193,35 @@ fn inject_residues_and_fuse_on_the_log() {
     assert_eq!(attack.lines().count(), 191);
     assert!(flight.join("filter.toml").is_file());
 
+    // A bias along a given direction (negative components included), 10 m west.
+    let west = dir.path().join("west");
+    run(&[
+        "inject",
+        "--in",
+        log,
+        "--gps-min-fix",
+        "0",
+        "--attack",
+        "bias",
+        "--start",
+        "5",
+        "--duration",
+        "2",
+        "--direction",
+        "-1,0,0",
+        "--out",
+        west.to_str().unwrap(),
+    ]);
+    let attack = std::fs::read_to_string(west.join("attack.csv")).unwrap();
+    assert!(attack.lines().any(|l| l.contains(",1,-10.0,0.0,0.0")), "{attack}");
+    let out = Command::new(bin)
+        .args(["inject", "--in", log, "--attack", "bias", "--start", "5", "--duration", "2", "--direction", "1,0"])
+        .arg("--out")
+        .arg(dir.path().join("bad"))
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&out.stderr).contains("three components E,N,U are required"));
+
     let clean = dir.path().join("clean.csv");
     let said = run(&[
         "residues",

@@ -75,7 +75,7 @@ pub struct Args {
     #[arg(long, value_name = "S", default_value_t = 5.0)]
     pub delay_s: f64,
     /// Offset direction in ENU as `E,N,U` (normalised); default: horizontal, drawn from --seed.
-    #[arg(long, value_name = "E,N,U", value_delimiter = ',', num_args = 3)]
+    #[arg(long, value_name = "E,N,U", value_delimiter = ',', allow_hyphen_values = true)]
     pub direction: Option<Vec<f64>>,
     /// Seed of the drawn direction.
     #[arg(long, default_value_t = 1)]
@@ -100,7 +100,10 @@ fn direction(args: &Args) -> Result<Vector3<f64>, CliError> {
     let bad = |msg: String| CliError::Input { path: PathBuf::from("--direction"), msg };
     match &args.direction {
         Some(v) => {
-            let u = Vector3::new(v[0], v[1], v[2]);
+            let [e, n, up] = v.as_slice() else {
+                return Err(bad(format!("{v:?}: three components E,N,U are required")));
+            };
+            let u = Vector3::new(*e, *n, *up);
             let n = u.norm();
             if !(n.is_finite() && n > 0.0) {
                 return Err(bad(format!("{v:?} is not a direction (finite, not zero)")));

@@ -140,9 +140,10 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     let model = ModelKind::from(args.model);
     check_streams(&args.input, &flight, model)?;
     let (mut cfg, mut sources) = filter_config(args, &flight, model)?;
-    let label_fn = |t: &[f64]| match (&flight.attack, args.no_labels) {
-        (Some(attack), false) => labels_at(t, attack),
-        _ => vec![false; t.len()],
+    // The attack labels decide the clean stretch whether or not they are written.
+    let label_fn = |t: &[f64]| match &flight.attack {
+        Some(attack) => labels_at(t, attack),
+        None => vec![false; t.len()],
     };
     if args.estimate_noise {
         let est = estimate_measurement_noise(&flight.streams, &cfg, &label_fn)
@@ -196,7 +197,8 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         out.series.channels().join(" "),
         record.display()
     );
-    warn_if_inconsistent(&args.input, &out.series, labels.as_deref(), args.estimate_noise);
+    let attack_labels = flight.attack.as_ref().map(|a| labels_at(out.series.t(), a));
+    warn_if_inconsistent(&args.input, &out.series, attack_labels.as_deref(), args.estimate_noise);
     Ok(())
 }
 

@@ -99,7 +99,8 @@ pub fn read_flight(path: &Path, ulog: &UlogOptions, columns: &ColumnMap) -> Resu
             "# Filter settings of a flight converted from the PX4 log {}:\n\
              # GPS σ from the receiver's reported accuracy (median eph, eph, epv over the fixes used).\n\
              [meas]\ngps_sigma_m = [{:?}, {:?}, {:?}]\n",
-            path.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+            // A file name is free text; in a TOML comment a line break would start a new line.
+            path.file_name().map_or_else(String::new, |n| n.to_string_lossy().replace(char::is_control, "?")),
             s[0],
             s[1],
             s[2]

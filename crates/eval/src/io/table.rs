@@ -46,8 +46,11 @@ impl ColumnMap {
     /// A message naming the key whose value is not a string.
     pub fn parse_toml(text: &str) -> std::result::Result<Self, String> {
         let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| e.to_string())?;
-        if let Some(toml::Value::Table(inner)) = table.remove("columns") {
-            table = inner;
+        if let Some(toml::Value::Table(inner)) = table.get("columns") {
+            if table.len() > 1 {
+                return Err("a column map is either `[columns]` or top-level pairs, not both".into());
+            }
+            table = inner.clone();
         }
         let mut map = std::collections::BTreeMap::new();
         for (theirs, v) in table {

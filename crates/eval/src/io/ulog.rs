@@ -13,7 +13,10 @@
 //! | VO | `vehicle_visual_odometry` | absolute pose → pose relative to a keyframe started every [`VO_KEYFRAME_PERIOD_S`], interpolated at the GPS fix times |
 //!
 //! Time: `t = (timestamp − t₀)·10⁻⁶ s`, with `t₀` the first IMU sample, so every stream shares the
-//! IMU's clock. A sample whose time does not increase is dropped and counted in
+//! IMU's clock; a topic that logs `timestamp_sample` (when the sample was taken, e.g.
+//! `vehicle_attitude`, `vehicle_visual_odometry`, `estimator_innovations`) is timed by it. PX4's
+//! GNSS topics log only the publication time, so a receiver's latency (PX4 models it as
+//! `EKF2_GPS_DELAY`) stays in the fix times. A sample whose time does not increase is dropped and counted in
 //! [`UlogFlight::notes`], as is a measurement outside the IMU's span. The attitude and VO
 //! references are resampled at the GPS fix times because Model I and Model II form a residue
 //! step where a GPS fix meets a reference sample (docs/decisions/011-residue-channels-and-pairing.md);
@@ -228,7 +231,19 @@ fn parse(path: &Path) -> Result<Parsed> {
             {
                 let topic = topics.entry(name.to_owned()).or_default();
                 let n = topic.t_us.len();
-                topic.t_us.push(u64::from_le_bytes(t));
+                // The time the sample was taken, where the topic logs it apart from the time it
+                // was published (PX4 `timestamp_sample`).
+                let sampled = d
+                    .flattened_format
+                    .field_iter()
+                    .find(|f| {
+                        f.flattened_field_name == "timestamp_sample" && f.field_type == FlattenedFieldType::UInt64
+                    })
+                    .and_then(|f| d.data.get(usize::from(f.offset)..usize::from(f.offset) + 8))
+                    .and_then(|b| <[u8; 8]>::try_from(b).ok())
+                    .map(u64::from_le_bytes)
+                    .filter(|&ts| ts > 0); // 0: not set (the simulator's ground-truth topics)
+                topic.t_us.push(sampled.unwrap_or_else(|| u64::from_le_bytes(t)));
                 for f in d.flattened_format.field_iter() {
                     if f.flattened_field_name == "timestamp" || f.field_type == FlattenedFieldType::Char {
                         continue;
@@ -545,15 +560,27 @@ fn poses(path: &Path, name: &str, topic: &Topic, t0: u64, position: Option<&[&st
     Ok(out)
 }
 
+/// Interpolation does not bridge a gap between samples longer than this many of the topic's
+/// median periods (a logging dropout).
+const MAX_GAP_PERIODS: f64 = 3.0;
+
+/// The median time between consecutive poses (infinite with fewer than two).
+fn median_period(poses: &[Pose]) -> f64 {
+    let mut dt: Vec<f64> = poses.windows(2).map(|w| w[1].0 - w[0].0).collect();
+    if dt.is_empty() { f64::INFINITY } else { median(&mut dt) }
+}
+
 /// The poses interpolated at the `clock` times inside their span (position linearly, rotation
-/// by slerp); clock times outside the span are skipped.
+/// by slerp); clock times outside the span, or inside a dropout of more than
+/// [`MAX_GAP_PERIODS`] median periods, are skipped.
 fn resample(poses: &[Pose], clock: &[f64]) -> Vec<Pose> {
+    let max_gap = MAX_GAP_PERIODS * median_period(poses);
     let mut out = Vec::with_capacity(clock.len());
     for &t in clock {
         let i = poses.partition_point(|p| p.0 < t);
         let (a, b) = match (i.checked_sub(1).and_then(|j| poses.get(j)), poses.get(i)) {
             (_, Some(b)) if b.0 == t => (b, b),
-            (Some(a), Some(b)) => (a, b),
+            (Some(a), Some(b)) if b.0 - a.0 <= max_gap => (a, b),
             _ => continue,
         };
         let w = if b.0 > a.0 { (t - a.0) / (b.0 - a.0) } else { 0.0 };
@@ -596,11 +623,9 @@ fn px4_innovations(path: &Path, topic: &Topic, t0: u64) -> Result<Vec<(f64, Vect
     let h0 = topic.col(path, INNOVATION_TOPIC, "gps_hpos[0]")?;
     let h1 = topic.col(path, INNOVATION_TOPIC, "gps_hpos[1]")?;
     let v = topic.col(path, INNOVATION_TOPIC, "gps_vpos")?;
-    let sample = topic.cols.get("timestamp_sample");
     let mut out = Vec::with_capacity(h0.len());
     for k in 0..h0.len() {
-        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)] // a logged µs timestamp
-        let t_us = sample.map_or(topic.t_us[k], |s| s[k] as u64);
+        let t_us = topic.t_us[k];
         let innov_ned = Vector3::new(h0[k], h1[k], v[k]);
         if innov_ned.iter().all(|x| x.is_finite()) {
             out.push((seconds(t_us, t0), -ned_to_enu(&innov_ned)));
