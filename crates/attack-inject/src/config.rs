@@ -172,8 +172,8 @@ pub struct AttackConfig {
     pub ramp_probability: f64,
     /// Ramp slope range `[min, max]` in m/s, drawn log-uniformly per ramp interval; the ramp's
     /// end offset is then `slope · duration` along the drawn direction. `None` (default): the
-    /// end offset is drawn from `amplitude` like a bias. Drift spoofing is slow: PX4/PX4-Autopilot
-    /// issue #27340 reports a ~5 m/s drift; public spoofing simulators drift at 0.1–1 m/s.
+    /// end offset is drawn from `amplitude` like a bias. Drift spoofing is slow: a PX4 user reports a
+    /// ~5 m/s drift (<https://github.com/PX4/PX4-Autopilot/issues/27340>); public spoofing simulators drift at 0.1–1 m/s.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ramp_slope_mps: Option<[f64; 2]>,
     /// Oscillation frequency range `[min, max]` in Hz of [`AttackKind::Oscillating`], drawn

@@ -212,8 +212,8 @@ pub enum MinMax {
     /// One AdamW step on the sum of both phase losses (Anomaly Transformer's
     /// `loss1.backward(); loss2.backward(); step()`).
     Summed,
-    /// A max-phase step, then a min-phase step on a fresh forward pass (thuml/Anomaly-Transformer
-    /// issue #70).
+    /// A max-phase step, then a min-phase step on a fresh forward pass
+    /// (<https://github.com/thuml/Anomaly-Transformer/issues/70>).
     Alternating,
 }
 

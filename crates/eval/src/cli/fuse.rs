@@ -35,7 +35,7 @@ use crate::cli::residues::{ModelArg, flight_filter};
 use crate::cli::train::read_manifest;
 use crate::closed_loop::{flight_from_dir, loop_metrics};
 use crate::dataset::{DatasetConfig, load_or_build};
-use crate::io::{Input, Output, UlogOptions, check_outputs, write_into_dir_atomic, write_text_atomic};
+use crate::io::{Input, Output, check_outputs, write_into_dir_atomic, write_text_atomic};
 use crate::runner::{Method, MethodConfigs, fit};
 use crate::scenarios::{ScenarioRow, markdown, plot_case, rows, write_csv};
 
@@ -132,13 +132,9 @@ pub struct Args {
     /// attack.csv gives the labels, truth.csv the position errors), or a PX4 ULog file.
     #[arg(long = "in", value_name = "DIR|LOG.ulg")]
     pub input: Option<PathBuf>,
-    /// ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all).
-    #[arg(long, value_name = "N", default_value_t = crate::io::DEFAULT_MIN_FIX_TYPE, requires = "input")]
-    pub gps_min_fix: u8,
-    /// Flight directory from another tool: its CSV column names mapped to the project's, as
-    /// THEIRS=OURS pairs (`gx=gyro_x,gy=gyro_y`) or a TOML file of `THEIRS = "OURS"` lines.
-    #[arg(long, value_name = "MAP|FILE.toml")]
-    pub columns: Option<String>,
+    /// How a recorded flight is read.
+    #[command(flatten)]
+    pub read: crate::cli::FlightReadArgs,
     /// EKF of a flight folder: I (GPS + attitude) or II (VO + GPS).
     #[arg(long, value_enum, default_value = "II", requires = "input")]
     pub ekf: ModelArg,
@@ -407,15 +403,7 @@ struct LoopRow {
 
 /// `fuse --in DIR`: fly a flight folder through the resilient estimator with the detector.
 fn fly_folder(args: &Args, dir: &Path, det: &FusionDetector) -> Result<(), CliError> {
-    let loaded = crate::io::read_flight(
-        dir,
-        &UlogOptions { min_fix_type: args.gps_min_fix },
-        &crate::cli::column_map(args.columns.as_deref())?,
-    )?;
-    for note in &loaded.notes {
-        eprintln!("{}: {note}", dir.display());
-    }
-    let folder = loaded.flight;
+    let folder = args.read.read(dir)?;
     let model = ModelKind::from(args.ekf);
     let (filter, _) = flight_filter(dir, &folder, model)?;
     let (flight, attack) = flight_from_dir(&folder);

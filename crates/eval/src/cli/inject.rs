@@ -24,10 +24,7 @@ use nalgebra::Vector3;
 use rand::{RngExt as _, SeedableRng as _, rngs::StdRng};
 
 use crate::cli::CliError;
-use crate::io::{
-    AttackRecord, DEFAULT_MIN_FIX_TYPE, Input, Output, Overwrite, UlogOptions, check_dir_output, check_outputs,
-    read_flight, write_flight_dir,
-};
+use crate::io::{AttackRecord, Input, Output, Overwrite, check_dir_output, check_outputs, write_flight_dir};
 
 /// The attack models `inject` applies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -80,13 +77,9 @@ pub struct Args {
     /// Seed of the drawn direction.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all).
-    #[arg(long, value_name = "N", default_value_t = DEFAULT_MIN_FIX_TYPE)]
-    pub gps_min_fix: u8,
-    /// Flight directory from another tool: its CSV column names mapped to the project's, as
-    /// THEIRS=OURS pairs (`gx=gyro_x,gy=gyro_y`) or a TOML file of `THEIRS = "OURS"` lines.
-    #[arg(long, value_name = "MAP|FILE.toml")]
-    pub columns: Option<String>,
+    /// How a recorded flight is read.
+    #[command(flatten)]
+    pub read: crate::cli::FlightReadArgs,
     /// Output flight directory (created atomically; must not exist or be empty unless --force).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
@@ -158,15 +151,7 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     check_outputs(&[Input::new("--in", &args.input)], &[Output::dir("--out", &args.out)])?;
     check_dir_output(&args.out, overwrite)?;
     let iv = interval(args)?;
-    let loaded = read_flight(
-        &args.input,
-        &UlogOptions { min_fix_type: args.gps_min_fix },
-        &crate::cli::column_map(args.columns.as_deref())?,
-    )?;
-    for note in &loaded.notes {
-        eprintln!("{}: {note}", args.input.display());
-    }
-    let mut flight = loaded.flight;
+    let mut flight = args.read.read(&args.input)?;
     if flight.attack.as_ref().is_some_and(|a| a.iter().any(|r| r.label)) {
         return Err(CliError::Input {
             path: args.input.clone(),

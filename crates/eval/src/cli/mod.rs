@@ -69,6 +69,35 @@ pub enum Command {
     Figures(figures::Args),
 }
 
+/// How a recorded flight is read, for every command that reads one (`residues`, `inject`,
+/// `fuse --in`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct FlightReadArgs {
+    /// ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all).
+    #[arg(long, value_name = "N", default_value_t = crate::io::DEFAULT_MIN_FIX_TYPE)]
+    pub gps_min_fix: u8,
+    /// Flight directory from another tool: its CSV column names mapped to the project's, as
+    /// THEIRS=OURS pairs (`gx=gyro_x,gy=gyro_y`) or a TOML file of `THEIRS = "OURS"` lines.
+    #[arg(long, value_name = "MAP|FILE.toml")]
+    pub columns: Option<String>,
+}
+
+impl FlightReadArgs {
+    /// Reads the flight at `path` (a flight directory or a PX4 ULog, `crate::io::read_flight`)
+    /// and prints what its conversion reported.
+    ///
+    /// # Errors
+    /// [`CliError`] naming the file, field or `--columns` entry.
+    pub fn read(&self, path: &std::path::Path) -> Result<crate::io::FlightDir, CliError> {
+        let ulog = crate::io::UlogOptions { min_fix_type: self.gps_min_fix };
+        let loaded = crate::io::read_flight(path, &ulog, &column_map(self.columns.as_deref())?)?;
+        for note in &loaded.notes {
+            eprintln!("{}: {note}", path.display());
+        }
+        Ok(loaded.flight)
+    }
+}
+
 /// The column map of a `--columns` value: a TOML file (`THEIRS = "OURS"` lines) when the value
 /// names one, else `THEIRS=OURS` pairs separated by commas; empty without the flag.
 ///

@@ -25,9 +25,8 @@ use uav_dynamics::TruthSample;
 
 use crate::cli::CliError;
 use crate::io::{
-    ATTITUDE_FILE, CONFIG_FILE, CovarianceLayout, DEFAULT_MIN_FIX_TYPE, FILTER_FILE, FlightConfig, FlightDir, GPS_FILE,
-    Input, IoError, Output, UlogOptions, VO_FILE, check_outputs, commit_all, labels_at, merge_over, read_flight,
-    stage_file, stage_residues, stage_truth,
+    ATTITUDE_FILE, CONFIG_FILE, CovarianceLayout, FILTER_FILE, FlightConfig, FlightDir, GPS_FILE, Input, IoError,
+    Output, VO_FILE, check_outputs, commit_all, labels_at, merge_over, stage_bytes, stage_residues, stage_truth,
 };
 
 /// Which EKF model to run (paper Sec. IV-A and V-A).
@@ -101,13 +100,9 @@ pub struct Args {
     /// and use them; the figures used are printed and written to FILE.filter.toml.
     #[arg(long)]
     pub estimate_noise: bool,
-    /// ULog input: drop GNSS fixes whose fix_type is below this (3 = 3-D fix, 0 keeps all).
-    #[arg(long, value_name = "N", default_value_t = DEFAULT_MIN_FIX_TYPE)]
-    pub gps_min_fix: u8,
-    /// Flight directory from another tool: its CSV column names mapped to the project's, as
-    /// THEIRS=OURS pairs (`gx=gyro_x,gy=gyro_y`) or a TOML file of `THEIRS = "OURS"` lines.
-    #[arg(long, value_name = "MAP|FILE.toml")]
-    pub columns: Option<String>,
+    /// How a recorded flight is read.
+    #[command(flatten)]
+    pub read: crate::cli::FlightReadArgs,
 }
 
 /// Where the filter record of a residue file goes: `FILE.csv` → `FILE.filter.toml`.
@@ -128,15 +123,7 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     let mut outputs = vec![Output::file("--out", &args.out), Output::file("the filter record", &record)];
     outputs.extend(args.estimates.as_deref().map(|p| Output::file("--estimates", p)));
     check_outputs(&inputs, &outputs)?;
-    let loaded = read_flight(
-        &args.input,
-        &UlogOptions { min_fix_type: args.gps_min_fix },
-        &crate::cli::column_map(args.columns.as_deref())?,
-    )?;
-    for note in &loaded.notes {
-        eprintln!("{}: {note}", args.input.display());
-    }
-    let flight = loaded.flight;
+    let flight = args.read.read(&args.input)?;
     let model = ModelKind::from(args.model);
     check_streams(&args.input, &flight, model)?;
     let (mut cfg, mut sources) = filter_config(args, &flight, model)?;
@@ -163,12 +150,10 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     }
     let out = generate_residues(&flight.streams, &cfg)
         .map_err(|e| CliError::Filter { path: args.input.clone(), msg: e.to_string() })?;
-    let labels = match (&flight.attack, args.no_labels) {
-        (Some(attack), false) => Some(labels_at(out.series.t(), attack)),
-        _ => None,
-    };
+    let attack_labels = flight.attack.as_ref().map(|a| labels_at(out.series.t(), a));
+    let labels = attack_labels.as_deref().filter(|_| !args.no_labels);
     // The outputs are staged and committed together: a failure writing any leaves none.
-    let mut staged = vec![stage_residues(&args.out, &out.series, labels.as_deref(), args.covariance.into())?];
+    let mut staged = vec![stage_residues(&args.out, &out.series, labels, args.covariance.into())?];
     if let Some(path) = &args.estimates {
         let rows: Vec<TruthSample> = out
             .estimates
@@ -179,25 +164,19 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     }
     let text =
         filter_record(&cfg, &sources).map_err(|msg| CliError::Io(IoError::Toml { path: record.clone(), msg }))?;
-    staged.push(stage_file(&record, |mut file| {
-        use std::io::Write as _;
-        file.write_all(text.as_bytes()).map_err(|source| IoError::Fs { path: record.clone(), op: "write", source })?;
-        Ok(file)
-    })?);
+    staged.push(stage_bytes(&record, text.as_bytes())?);
     commit_all(staged)?;
     let n = out.series.len();
     #[allow(clippy::cast_precision_loss)] // step counts are far below 2^52
     let mean_nis = out.series.nis().iter().sum::<f64>() / n.max(1) as f64;
-    let attacked = labels
-        .as_ref()
-        .map_or_else(|| "unlabelled".to_owned(), |l| format!("{} attacked", l.iter().filter(|&&x| x).count()));
+    let attacked =
+        labels.map_or_else(|| "unlabelled".to_owned(), |l| format!("{} attacked", l.iter().filter(|&&x| x).count()));
     eprintln!(
         "wrote {}: {n} residue steps ({attacked}), channels {}, mean NIS {mean_nis:.3}; filter used: {}",
         args.out.display(),
         out.series.channels().join(" "),
         record.display()
     );
-    let attack_labels = flight.attack.as_ref().map(|a| labels_at(out.series.t(), a));
     warn_if_inconsistent(&args.input, &out.series, attack_labels.as_deref(), args.estimate_noise);
     Ok(())
 }

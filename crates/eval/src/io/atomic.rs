@@ -280,8 +280,17 @@ pub fn write_path_atomic<E: From<IoError>>(
 /// # Errors
 /// As [`write_file_atomic`].
 pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    stage_bytes(path, bytes)?.commit()
+}
+
+/// Writes `bytes` into `path`'s temporary, to be committed with the other outputs of a command
+/// ([`commit_all`]).
+///
+/// # Errors
+/// As [`stage_file`].
+pub fn stage_bytes(path: &Path, bytes: &[u8]) -> Result<Staged> {
     use std::io::Write as _;
-    write_file_atomic(path, |mut f| {
+    stage_file(path, |mut f| {
         f.write_all(bytes).map_err(|source| IoError::Fs { path: path.to_owned(), op: "write", source })?;
         Ok(f)
     })

@@ -38,8 +38,8 @@ mod ulog;
 
 pub use atomic::{
     OutputKind, Overwrite, Staged, TEMP_PREFIX, check_dir_output, check_replaceable, commit_all, remove_stale_temps,
-    stage_file, write_bytes_atomic, write_dir_atomic, write_file_atomic, write_into_dir_atomic, write_path_atomic,
-    write_text_atomic,
+    stage_bytes, stage_file, write_bytes_atomic, write_dir_atomic, write_file_atomic, write_into_dir_atomic,
+    write_path_atomic, write_text_atomic,
 };
 pub use attack::{ATTACK_COLUMNS, AttackRecord, TIME_MATCH_TOL_S, align_labels, labels_at, read_attack, write_attack};
 pub use error::{IoError, Result};

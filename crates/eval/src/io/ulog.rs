@@ -32,7 +32,7 @@
 //! logs (`vehicle_global_position_groundtruth` in the flight's ENU frame,
 //! `vehicle_attitude_groundtruth`).
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::Path;
 
 use ekf_residue::geodetic::{Geodetic, LocalEnu};
@@ -216,47 +216,28 @@ fn parse(path: &Path) -> Result<Parsed> {
         return Err(err("not a PX4 ULog file (it does not start with the ULog magic bytes)".into()));
     }
     let path_str = path.to_str().ok_or_else(|| err("the ULog reader needs a UTF-8 path".into()))?;
-    let mut topics: BTreeMap<String, Topic> = BTreeMap::new();
-    let mut counts: BTreeMap<String, usize> = BTreeMap::new();
+    let mut plans: HashMap<u16, Plan> = HashMap::new();
+    let mut kept: Vec<Kept> = Vec::new();
+    let mut counts: Vec<(String, usize)> = Vec::new();
     let mut callback = |msg: &Message| {
-        if let Message::Data(d) = msg
-            && d.multi_id.value() == 0
+        let Message::Data(d) = msg else { return SimpleCallbackResult::KeepReading };
+        let plan = plans.entry(d.msg_id).or_insert_with(|| Plan::new(d, &mut kept, &mut counts));
+        if let Some(c) = plan.count {
+            counts[c].1 += 1;
+        }
+        if let Some((k, ts)) = plan.topic
+            && let Some(t) = u64_at(d.data, ts)
         {
-            let name = d.flattened_format.message_name();
-            *counts.entry(name.to_owned()).or_default() += 1;
-            if TOPICS.contains(&name)
-                && let Some(ts) = &d.flattened_format.timestamp_field
-                && let Some(t) = d.data.get(usize::from(ts.offset)..usize::from(ts.offset) + 8)
-                && let Ok(t) = <[u8; 8]>::try_from(t)
-            {
-                let topic = topics.entry(name.to_owned()).or_default();
-                let n = topic.t_us.len();
-                // The time the sample was taken, where the topic logs it apart from the time it
-                // was published (PX4 `timestamp_sample`).
-                let sampled = d
-                    .flattened_format
-                    .field_iter()
-                    .find(|f| {
-                        f.flattened_field_name == "timestamp_sample" && f.field_type == FlattenedFieldType::UInt64
-                    })
-                    .and_then(|f| d.data.get(usize::from(f.offset)..usize::from(f.offset) + 8))
-                    .and_then(|b| <[u8; 8]>::try_from(b).ok())
-                    .map(u64::from_le_bytes)
-                    .filter(|&ts| ts > 0); // 0: not set (the simulator's ground-truth topics)
-                topic.t_us.push(sampled.unwrap_or_else(|| u64::from_le_bytes(t)));
-                for f in d.flattened_format.field_iter() {
-                    if f.flattened_field_name == "timestamp" || f.field_type == FlattenedFieldType::Char {
-                        continue;
-                    }
-                    let col = topic.cols.entry(f.flattened_field_name.clone()).or_default();
-                    // A field missing from an earlier message of the same format cannot
-                    // happen; pad defensively so columns stay aligned with `t_us`.
-                    col.resize(n, f64::NAN);
-                    col.push(decode(d.data, f).unwrap_or(f64::NAN));
-                    if n == 0 && is_integer(&f.field_type) {
-                        topic.integer.insert(f.flattened_field_name.clone());
-                    }
-                }
+            let Kept { topic, cols, .. } = &mut kept[k];
+            let n = topic.t_us.len();
+            // 0: `timestamp_sample` not set (the simulator's ground-truth topics).
+            let sampled = plan.sample.and_then(|o| u64_at(d.data, o)).filter(|&ts| ts > 0);
+            topic.t_us.push(sampled.unwrap_or(t));
+            for (ci, f) in &plan.fields {
+                // Every message of a subscription has every field; padding keeps a column
+                // aligned with `t_us` should two subscriptions of one topic differ.
+                cols[*ci].resize(n, f64::NAN);
+                cols[*ci].push(decode(d.data, f).unwrap_or(f64::NAN));
             }
         }
         SimpleCallbackResult::KeepReading
@@ -271,13 +252,99 @@ fn parse(path: &Path) -> Result<Parsed> {
         Ok(Err(e)) => return Err(err(format!("cannot parse the log: {e}"))),
         Err(_) => return Err(err("the ULog parser failed on this file (a malformed log)".into())),
     };
-    for t in topics.values_mut() {
-        let n = t.t_us.len();
-        for c in t.cols.values_mut() {
-            c.resize(n, f64::NAN);
+    let topics = kept
+        .into_iter()
+        .map(|Kept { name, mut topic, names, cols }| {
+            let n = topic.t_us.len();
+            topic.cols = names
+                .into_iter()
+                .zip(cols)
+                .map(|(c, mut v)| {
+                    v.resize(n, f64::NAN);
+                    (c, v)
+                })
+                .collect();
+            (name, topic)
+        })
+        .collect();
+    Ok((topics, counts.into_iter().collect(), completeness))
+}
+
+/// A kept topic while the log is read: its columns by index, named by `names`.
+struct Kept {
+    name: String,
+    topic: Topic,
+    names: Vec<String>,
+    cols: Vec<Vec<f64>>,
+}
+
+/// The little-endian `u64` at byte `offset` of a message, if the message is long enough.
+fn u64_at(data: &[u8], offset: usize) -> Option<u64> {
+    data.get(offset..offset + 8).and_then(|b| <[u8; 8]>::try_from(b).ok()).map(u64::from_le_bytes)
+}
+
+/// How the data messages of one subscription are stored, decided at its first message so that
+/// later messages cost one decode per kept field.
+struct Plan {
+    /// Index of the topic's message count (instance 0 only).
+    count: Option<usize>,
+    /// Index of the kept topic and offset of its `timestamp`, for the topics of [`TOPICS`].
+    topic: Option<(usize, usize)>,
+    /// Offset of a `uint64 timestamp_sample` field.
+    sample: Option<usize>,
+    /// The stored fields and the index of each one's column in the topic.
+    fields: Vec<(usize, FlattenedField)>,
+}
+
+impl Plan {
+    fn new(
+        d: &px4_ulog::stream_parser::DataMessage<'_>,
+        kept: &mut Vec<Kept>,
+        counts: &mut Vec<(String, usize)>,
+    ) -> Self {
+        let mut plan = Self { count: None, topic: None, sample: None, fields: Vec::new() };
+        if d.multi_id.value() != 0 {
+            return plan;
         }
+        let format = d.flattened_format;
+        let name = format.message_name();
+        let index = |list: &mut Vec<String>, name: &str| match list.iter().position(|n| n == name) {
+            Some(i) => i,
+            None => {
+                list.push(name.to_owned());
+                list.len() - 1
+            }
+        };
+        plan.count = Some(counts.iter().position(|(n, _)| n == name).unwrap_or_else(|| {
+            counts.push((name.to_owned(), 0));
+            counts.len() - 1
+        }));
+        let Some(ts) = format.timestamp_field.as_ref().filter(|_| TOPICS.contains(&name)) else { return plan };
+        let k = kept.iter().position(|t| t.name == name).unwrap_or_else(|| {
+            kept.push(Kept { name: name.to_owned(), topic: Topic::default(), names: Vec::new(), cols: Vec::new() });
+            kept.len() - 1
+        });
+        plan.topic = Some((k, usize::from(ts.offset)));
+        let Kept { topic, names, cols, .. } = &mut kept[k];
+        for f in format.field_iter() {
+            let field = f.flattened_field_name.as_str();
+            if field == "timestamp_sample" && f.field_type == FlattenedFieldType::UInt64 {
+                plan.sample = Some(usize::from(f.offset));
+            }
+            if field == "timestamp" || f.field_type == FlattenedFieldType::Char {
+                continue;
+            }
+            let ci = index(names, field);
+            if ci == cols.len() {
+                cols.push(Vec::new());
+            }
+            if is_integer(&f.field_type) {
+                topic.integer.insert(field.to_owned());
+            }
+            plan.fields.push((ci, f.clone()));
+        }
+        plan
     }
-    Ok((topics, counts, completeness))
 }
 
 /// Reads a PX4 ULog as a flight (see the module doc).
