@@ -48,7 +48,9 @@ pub fn init_vars_seeded(varmap: &VarMap, seed: u64) -> Result<()> {
         } else {
             continue;
         };
-        let t = Tensor::from_vec(values, dims.as_slice(), &Device::Cpu)?.to_dtype(var.dtype())?;
+        // Drawn on the CPU whatever the variable's device, so the values do not depend on it.
+        let t =
+            Tensor::from_vec(values, dims.as_slice(), &Device::Cpu)?.to_dtype(var.dtype())?.to_device(var.device())?;
         var.set(&t)?;
     }
     Ok(())

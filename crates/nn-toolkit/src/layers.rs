@@ -54,6 +54,16 @@ impl Dense {
     pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         crate::fused::add_bias(&x.matmul(&self.weight.t()?)?, &self.bias)
     }
+
+    /// The weight `W`, `out × in`.
+    pub fn weight(&self) -> &Tensor {
+        &self.weight
+    }
+
+    /// The bias `b`, `out` values.
+    pub fn bias(&self) -> &Tensor {
+        &self.bias
+    }
 }
 
 /// Layer norm over the last axis of rows `x` (`n × d`) with a learnable gain and bias.
@@ -81,6 +91,16 @@ impl Norm {
     /// candle errors.
     pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         crate::fused::layer_norm(x, &self.gain, &self.bias, LN_EPS)
+    }
+
+    /// The gain `γ`, `d` values (variable `weight`).
+    pub fn gain(&self) -> &Tensor {
+        &self.gain
+    }
+
+    /// The bias `β`, `d` values.
+    pub fn bias(&self) -> &Tensor {
+        &self.bias
     }
 }
 

@@ -50,6 +50,13 @@ pub enum ModelError {
         /// Where (epoch, step, quantity).
         what: String,
     },
+    /// The streaming engine cannot represent a network; the detector streams through the
+    /// candle forward pass instead.
+    #[error("the streaming engine does not support {what}")]
+    StreamingUnsupported {
+        /// What it does not support.
+        what: String,
+    },
     /// Error from the detector layer.
     #[error(transparent)]
     Detect(#[from] DetectError),

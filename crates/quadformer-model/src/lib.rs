@@ -37,6 +37,7 @@ pub mod error;
 pub mod js;
 pub mod model;
 pub mod streaming;
+pub mod weights;
 
 pub use detector::{
     ModeResult, OnlineQuadFormer, QuadFormerConfig, QuadFormerDetector, RawScores, ScoreConfig, ScoreMode,
@@ -47,3 +48,4 @@ pub use nn_toolkit::{
     Batch, EpochStats, Features, Normaliser, SeriesWindows, TrainConfig, TrainReport, TrainableModel, WindowConfig,
     Windows,
 };
+pub use weights::{EncoderLayerWeights, PriorWeights, QuadFormerWeights};

@@ -24,15 +24,16 @@
 //! `TCD(sg(T), C)`, so its discrepancy term only moves the attention (`W_Q`, `W_K`, embeddings).
 
 use candle_core::{D, DType, Device, Tensor};
-use candle_nn::{Init, VarBuilder, VarMap};
+use candle_nn::{VarBuilder, VarMap};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
 pub use crate::js::GradFlow;
 use crate::js::js_divergence_with;
+pub use crate::weights::log_gamma_name;
+use crate::weights::{PriorWeights, QuadFormerWeights};
 use nn_toolkit::fused::{gelu, softmax_last_dim};
-use nn_toolkit::init::init_vars_seeded;
-use nn_toolkit::layers::{Dense, Norm};
+use nn_toolkit::layers::Dense;
 use nn_toolkit::loss::masked_bce_with_logits;
 use nn_toolkit::window::Batch;
 
@@ -275,34 +276,16 @@ pub enum Steps {
     },
 }
 
-struct Layer {
-    w_q: Dense,
-    w_k: Dense,
-    w_v: Dense,
-    w_o: Dense,
-    /// `ln γ`, `heads × l` (TPC only).
-    log_gamma: Option<Tensor>,
-    /// Width projection of the Gaussian prior (TPC off only).
-    sigma: Option<Dense>,
-    norm1: Norm,
-    ff1: Dense,
-    ff2: Dense,
-    norm2: Norm,
-}
-
 /// The QUADFormer network with its own variables.
 pub struct QuadFormerNet {
     cfg: NetConfig,
     len: usize,
     dim: usize,
     varmap: VarMap,
-    embed: Dense,
+    /// Every weight, typed (the variables of `varmap`).
+    weights: QuadFormerWeights,
     /// Sinusoidal positional encoding, `1 × l × d_model`.
     pos: Tensor,
-    layers: Vec<Layer>,
-    recon: Dense,
-    class1: Dense,
-    class2: Dense,
     /// `|j − i|^p`, `1 × l × l`, built once (TPC).
     dist_p: Tensor,
     /// `|j − i|²`, `1 × 1 × l × l`, built once (Gaussian prior).
@@ -312,18 +295,24 @@ pub struct QuadFormerNet {
     prior_cache: Option<Vec<Tensor>>,
 }
 
-/// Name of the TPC width variable of layer `h` (for tests and inspection).
-pub fn log_gamma_name(h: usize) -> String {
-    format!("layers.{h}.attn.log_gamma")
-}
-
 impl QuadFormerNet {
-    /// Builds the network for windows of `len` steps × `dim` channels and initialises every
-    /// variable from `seed` ([`init_vars_seeded`]; `ln γ = ln gamma_init`).
+    /// Builds the network on the CPU for windows of `len` steps × `dim` channels and
+    /// initialises every variable from `seed` ([`QuadFormerWeights::init_seeded`]); as
+    /// [`QuadFormerNet::new_on`] with [`Device::Cpu`].
     ///
     /// # Errors
     /// [`ModelError::Config`] for a bad config; candle errors.
     pub fn new(cfg: &NetConfig, len: usize, dim: usize, seed: u64) -> Result<Self> {
+        Self::new_on(cfg, len, dim, seed, &Device::Cpu)
+    }
+
+    /// Builds the network with its variables and constants on `device` (the CPU, or a CUDA
+    /// device in a build with candle's `cuda` feature). The initial values are drawn on the
+    /// CPU from `seed` whatever the device, so they do not depend on it.
+    ///
+    /// # Errors
+    /// [`ModelError::Config`] for a bad config; candle errors.
+    pub fn new_on(cfg: &NetConfig, len: usize, dim: usize, seed: u64, device: &Device) -> Result<Self> {
         cfg.check()?;
         if len < 2 || dim == 0 {
             return Err(ModelError::Config {
@@ -331,62 +320,19 @@ impl QuadFormerNet {
                 msg: format!("need l ≥ 2 and m ≥ 1, got l={len}, m={dim}"),
             });
         }
-        let dev = Device::Cpu;
+        let dev = device.clone();
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
-        let d = cfg.d_model;
-        let embed = Dense::new(dim, d, vb.pp("embed"))?;
-        let mut layers = Vec::with_capacity(cfg.n_layers);
-        for h in 0..cfg.n_layers {
-            let vl = vb.pp(format!("layers.{h}"));
-            let va = vl.pp("attn");
-            let (log_gamma, sigma) = match cfg.prior {
-                Prior::Tpc => {
-                    (Some(va.get_with_hints((cfg.n_heads, len), "log_gamma", Init::Const(cfg.gamma_init.ln()))?), None)
-                }
-                Prior::Gaussian => (None, Some(Dense::new(d, cfg.n_heads, va.pp("sigma"))?)),
-            };
-            layers.push(Layer {
-                w_q: Dense::new(d, d, va.pp("w_q"))?,
-                w_k: Dense::new(d, d, va.pp("w_k"))?,
-                w_v: Dense::new(d, d, va.pp("w_v"))?,
-                w_o: Dense::new(d, d, va.pp("w_o"))?,
-                log_gamma,
-                sigma,
-                norm1: Norm::new(d, vl.pp("norm1"))?,
-                ff1: Dense::new(d, cfg.d_ff, vl.pp("ff1"))?,
-                ff2: Dense::new(cfg.d_ff, d, vl.pp("ff2"))?,
-                norm2: Norm::new(d, vl.pp("norm2"))?,
-            });
-        }
-        let recon = Dense::new(d, dim, vb.pp("recon"))?;
-        let class_in = match cfg.class_input {
-            ClassInput::Reconstruction => dim,
-            ClassInput::Hidden => d,
-        };
-        let class1 = Dense::new(class_in, cfg.d_class, vb.pp("class1"))?;
-        let class2 = Dense::new(cfg.d_class, 1, vb.pp("class2"))?;
-        init_vars_seeded(&varmap, seed)?;
-        // ln γ is rank 2 and was overwritten by the generic rule: reset it to its constant.
-        for h in 0..cfg.n_layers {
-            if cfg.prior == Prior::Tpc {
-                let t = Tensor::full(cfg.gamma_init.ln() as f32, (cfg.n_heads, len), &dev)?;
-                let mut vm = varmap.clone();
-                vm.set_one(log_gamma_name(h), t)?;
-            }
-        }
-        let (dist_p, dist_sq) = distance_matrices(len, cfg.p)?;
+        let weights = QuadFormerWeights::new(cfg, len, dim, &vb)?;
+        QuadFormerWeights::init_seeded(&varmap, cfg, len, seed, &dev)?;
+        let (dist_p, dist_sq) = distance_matrices(len, cfg.p, &dev)?;
         Ok(Self {
             cfg: cfg.clone(),
             len,
             dim,
             varmap,
-            embed,
-            pos: positional_encoding(len, d)?,
-            layers,
-            recon,
-            class1,
-            class2,
+            weights,
+            pos: positional_encoding(len, cfg.d_model, &dev)?,
             dist_p,
             dist_sq,
             prior_cache: None,
@@ -396,6 +342,16 @@ impl QuadFormerNet {
     /// The network's variables (for the optimiser and checkpoints).
     pub fn varmap(&self) -> &VarMap {
         &self.varmap
+    }
+
+    /// The network's weights, typed (the same tensors as [`QuadFormerNet::varmap`]).
+    pub fn weights(&self) -> &QuadFormerWeights {
+        &self.weights
+    }
+
+    /// The device of the variables and of every tensor the forward pass makes.
+    pub fn device(&self) -> &Device {
+        self.pos.device()
     }
 
     /// The architecture.
@@ -425,10 +381,10 @@ impl QuadFormerNet {
     /// candle errors.
     pub fn freeze(&mut self) -> Result<()> {
         self.prior_cache = None;
-        let mut cache = Vec::with_capacity(self.layers.len());
-        for layer in &self.layers {
-            if let Some(lg) = &layer.log_gamma {
-                cache.push(self.tpc(lg)?.detach());
+        let mut cache = Vec::with_capacity(self.weights.layers.len());
+        for layer in &self.weights.layers {
+            if let PriorWeights::Tpc { log_gamma } = &layer.prior {
+                cache.push(self.tpc(log_gamma)?.detach());
             }
         }
         // Empty for the Gaussian prior, which depends on the input.
@@ -450,7 +406,14 @@ impl QuadFormerNet {
         if let Some(cache) = &self.prior_cache {
             return Ok(cache.clone());
         }
-        self.layers.iter().filter_map(|layer| layer.log_gamma.as_ref()).map(|lg| self.tpc(lg)).collect()
+        self.weights
+            .layers
+            .iter()
+            .filter_map(|layer| match &layer.prior {
+                PriorWeights::Tpc { log_gamma } => Some(self.tpc(log_gamma)),
+                PriorWeights::Gaussian { .. } => None,
+            })
+            .collect()
     }
 
     /// Drops the inference cache (before training again).
@@ -504,7 +467,8 @@ impl QuadFormerNet {
         let (d, heads) = (self.cfg.d_model, self.cfg.n_heads);
         let dh = d / heads;
         let scale = 1.0 / (dh as f64).sqrt();
-        let mut h = self
+        let w = &self.weights;
+        let mut h = w
             .embed
             .forward(&x.reshape((b * l, m))?)?
             .reshape((b, l, d))?
@@ -517,16 +481,16 @@ impl QuadFormerNet {
         let last_row =
             |t: &Tensor| -> candle_core::Result<Tensor> { t.reshape((b, l, d))?.narrow(1, l - 1, 1)?.reshape((b, d)) };
         let mut k_prev: Option<Tensor> = None;
-        let mut prior = Vec::with_capacity(self.layers.len());
-        let mut attn = Vec::with_capacity(self.layers.len());
-        let n_layers = self.layers.len();
+        let mut prior = Vec::with_capacity(w.layers.len());
+        let mut attn = Vec::with_capacity(w.layers.len());
+        let n_layers = w.layers.len();
         // Rows the last layer and the heads produce, and whether every layer's attention is
         // kept for the TCD.
         let (rows, keep_attn) = match steps {
             Steps::All => (l, true),
             Steps::Last { with_tcd } => (1, with_tcd),
         };
-        for (idx, layer) in self.layers.iter().enumerate() {
+        for (idx, layer) in w.layers.iter().enumerate() {
             let last_layer = idx + 1 == n_layers;
             let out_rows = if last_layer { rows } else { l };
             // Queries of every step only when the attention is kept.
@@ -547,11 +511,10 @@ impl QuadFormerNet {
             let c = softmax_last_dim(&scores)?;
             let c_out = if q_rows == out_rows { c.clone() } else { c.narrow(2, l - 1, 1)? };
             if keep_attn {
-                prior.push(match (&layer.log_gamma, &layer.sigma, &self.prior_cache) {
-                    (Some(_), _, Some(cache)) if idx < cache.len() => cache[idx].clone(),
-                    (Some(lg), _, _) => self.tpc(lg)?,
-                    (None, Some(sp), _) => self.gaussian_prior(sp, &h, b)?,
-                    (None, None, _) => candle_core::bail!("layer {idx} has no prior"),
+                prior.push(match (&layer.prior, &self.prior_cache) {
+                    (PriorWeights::Tpc { .. }, Some(cache)) if idx < cache.len() => cache[idx].clone(),
+                    (PriorWeights::Tpc { log_gamma }, _) => self.tpc(log_gamma)?,
+                    (PriorWeights::Gaussian { sigma }, _) => self.gaussian_prior(sigma, &h, b)?,
                 });
                 attn.push(c);
             }
@@ -561,12 +524,12 @@ impl QuadFormerNet {
             h = layer.norm2.forward(&(f + &z)?)?;
             k_prev = k;
         }
-        let r_hat = self.recon.forward(&h)?;
+        let r_hat = w.recon.forward(&h)?;
         let class_in = match self.cfg.class_input {
             ClassInput::Reconstruction => &r_hat,
             ClassInput::Hidden => &h,
         };
-        let logits = self.class2.forward(&gelu(&self.class1.forward(class_in)?)?)?.reshape((b, rows))?;
+        let logits = w.class2.forward(&gelu(&w.class1.forward(class_in)?)?)?.reshape((b, rows))?;
         Ok(Output { r_hat: r_hat.reshape((b, rows, m))?, logits, prior, attn })
     }
 
@@ -624,7 +587,7 @@ impl QuadFormerNet {
 }
 
 /// `|j − i|^p` (`1 × l × l`) and `|j − i|²` (`1 × 1 × l × l`).
-fn distance_matrices(len: usize, p: f64) -> candle_core::Result<(Tensor, Tensor)> {
+fn distance_matrices(len: usize, p: f64, dev: &Device) -> candle_core::Result<(Tensor, Tensor)> {
     let mut dp = Vec::with_capacity(len * len);
     let mut d2 = Vec::with_capacity(len * len);
     for i in 0..len {
@@ -634,11 +597,11 @@ fn distance_matrices(len: usize, p: f64) -> candle_core::Result<(Tensor, Tensor)
             d2.push((a * a) as f32);
         }
     }
-    Ok((Tensor::from_vec(dp, (1, len, len), &Device::Cpu)?, Tensor::from_vec(d2, (1, 1, len, len), &Device::Cpu)?))
+    Ok((Tensor::from_vec(dp, (1, len, len), dev)?, Tensor::from_vec(d2, (1, 1, len, len), dev)?))
 }
 
 /// Fixed sinusoidal positional encoding (Vaswani et al.), `1 × l × d`.
-fn positional_encoding(len: usize, d: usize) -> candle_core::Result<Tensor> {
+fn positional_encoding(len: usize, d: usize, dev: &Device) -> candle_core::Result<Tensor> {
     let mut pe = vec![0f32; len * d];
     for pos in 0..len {
         for i in 0..d {
@@ -647,7 +610,7 @@ fn positional_encoding(len: usize, d: usize) -> candle_core::Result<Tensor> {
             pe[pos * d + i] = if i % 2 == 0 { angle.sin() } else { angle.cos() } as f32;
         }
     }
-    Tensor::from_vec(pe, (1, len, d), &Device::Cpu)
+    Tensor::from_vec(pe, (1, len, d), dev)
 }
 
 /// The network paired with its loss weights, as trained by [`nn_toolkit::train::train`].

@@ -7,7 +7,7 @@ use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 
 use super::*;
-use crate::model::{GradFlow, NetConfig, Steps};
+use crate::model::{ClassInput, GradFlow, NetConfig, Prior, QuadFormerNet, Steps};
 
 const L: usize = 12;
 const M: usize = 3;
