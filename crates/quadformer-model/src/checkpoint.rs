@@ -20,7 +20,6 @@ use sha2::{Digest, Sha256};
 use crate::detector::{ModeResult, QuadFormerConfig, QuadFormerDetector};
 use crate::error::{ModelError, Result};
 use crate::model::QuadFormerNet;
-use crate::streaming::StreamingNet;
 use nn_toolkit::window::Normaliser;
 
 /// Format name written into every manifest.
@@ -282,7 +281,7 @@ impl QuadFormerDetector {
         config.window.features = manifest.normaliser.features;
         Ok(QuadFormerDetector {
             config,
-            streaming: StreamingNet::new(&net)?,
+            streaming: crate::detector::streaming_engine(&net)?,
             net,
             norm: manifest.normaliser,
             chosen: manifest.chosen,

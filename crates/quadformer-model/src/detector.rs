@@ -16,10 +16,7 @@
 
 use candle_core::{D, Device, Tensor};
 use detection_metrics::best_f1_threshold;
-use ekf_residue::{
-    DetectError, Detector, Fit, LabelledResidues, OnlineDecision, OnlineDetector, ResidueError, ResidueSeries,
-    ResidueStep, check_channels,
-};
+use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, OnlineDetector, ResidueSeries, check_channels};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ModelError, Result};
@@ -240,6 +237,18 @@ impl RawScores {
     }
 }
 
+/// The streaming engine of `net`, or `None` where it cannot represent the network.
+///
+/// # Errors
+/// Errors of [`StreamingNet::new`] other than [`ModelError::StreamingUnsupported`].
+pub(crate) fn streaming_engine(net: &QuadFormerNet) -> Result<Option<StreamingNet>> {
+    match StreamingNet::new(net) {
+        Ok(engine) => Ok(Some(engine)),
+        Err(ModelError::StreamingUnsupported { .. }) => Ok(None),
+        Err(e) => Err(e),
+    }
+}
+
 fn combine(p: f64, a: f64, crit_scale: f64) -> f64 {
     0.5 * p + 0.5 * a / (a + crit_scale)
 }
@@ -327,8 +336,10 @@ fn chosen(results: &[ModeResult], forced: Option<ScoreMode>) -> Result<ModeResul
 pub struct QuadFormerDetector {
     pub(crate) config: QuadFormerConfig,
     pub(crate) net: QuadFormerNet,
-    /// The network prepared for streaming, cloned by each [`OnlineQuadFormer`].
-    pub(crate) streaming: StreamingNet,
+    /// The network prepared for streaming, cloned by each [`OnlineQuadFormer`]; `None` where
+    /// the engine cannot represent the network ([`StreamingNet::unsupported`]), and the online
+    /// detector runs the candle forward pass on its window instead.
+    pub(crate) streaming: Option<StreamingNet>,
     pub(crate) norm: Normaliser,
     pub(crate) chosen: ModeResult,
     pub(crate) crit_scale: f64,
@@ -387,7 +398,7 @@ impl Fit for QuadFormerConfig {
         let chosen = chosen(&cal.results, self.score.mode)?;
         let mut det = QuadFormerDetector {
             config: self.clone(),
-            streaming: StreamingNet::new(&net)?,
+            streaming: streaming_engine(&net)?,
             net,
             norm,
             chosen,
@@ -455,6 +466,13 @@ impl QuadFormerDetector {
         Ok(self.mode_results.iter().map(|r| (*r, raw.mode(r.mode, self.crit_scale))).collect())
     }
 
+    /// Whether streaming decisions run in the streaming engine ([`StreamingNet`]); otherwise
+    /// they run the candle forward pass on the sliding window (same scores up to rounding,
+    /// slower).
+    pub fn streams_with_engine(&self) -> bool {
+        self.streaming.is_some()
+    }
+
     /// A streaming detector ([`OnlineQuadFormer`]).
     pub fn online_quadformer(&self) -> OnlineQuadFormer<'_> {
         OnlineQuadFormer::new(self)
@@ -495,81 +513,9 @@ impl Detector for QuadFormerDetector {
     }
 }
 
-/// Streaming QUADFormer: scores each new step as the last position of the window of the `l`
-/// latest normalised residues (causal; a batch [`Detector::score`] averages over all windows
-/// covering a step, so the two differ slightly). Until `l` steps have been seen the window is
-/// padded at the front with the first step, as in [`nn_toolkit::window`]. The network runs in a
-/// [`StreamingNet`], which reuses the previous windows' work on layer 1 and allocates nothing,
-/// and computes the TCD of the window only for the modes that read it.
-pub struct OnlineQuadFormer<'a> {
-    det: &'a QuadFormerDetector,
-    net: StreamingNet,
-    /// The newest normalised residue.
-    x: Vec<f32>,
-}
+pub use online::OnlineQuadFormer;
 
-impl<'a> OnlineQuadFormer<'a> {
-    /// A streaming detector with empty history.
-    pub fn new(det: &'a QuadFormerDetector) -> Self {
-        let m = det.net.dim();
-        Self { det, net: det.streaming.clone(), x: vec![0.0; m] }
-    }
-
-    /// The chosen mode's score of the newest step, with the window slid to end at `x`.
-    fn score_newest(&mut self) -> Result<f64> {
-        let mode = self.det.chosen.mode;
-        let reads_tcd = matches!(mode, ScoreMode::Alg2 | ScoreMode::AnomalyTransformer | ScoreMode::Combined);
-        let out = self.net.push(&self.x, reads_tcd)?;
-        let tcd = out.tcd.unwrap_or_default();
-        let at = || last_of_softmax(tcd, -self.det.config.score.temperature) * f64::from(out.recon_err);
-        let class = || 1.0 / (1.0 + (-f64::from(out.logit)).exp());
-        Ok(match mode {
-            ScoreMode::Alg2 => last_of_softmax(tcd, -1.0),
-            ScoreMode::AnomalyTransformer => at(),
-            ScoreMode::Classifier => class(),
-            ScoreMode::Combined => combine(class(), at(), self.det.crit_scale),
-        })
-    }
-}
-
-/// The last entry of `softmax(k·v)`, `NaN` for an empty `v`.
-fn last_of_softmax(v: &[f32], k: f64) -> f64 {
-    let Some(&last) = v.last() else { return f64::NAN };
-    let max = v.iter().map(|&x| k * f64::from(x)).fold(f64::NEG_INFINITY, f64::max);
-    let sum: f64 = v.iter().map(|&x| (k * f64::from(x) - max).exp()).sum();
-    (k * f64::from(last) - max).exp() / sum
-}
-
-impl OnlineDetector for OnlineQuadFormer<'_> {
-    fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
-        let (m, k) = (self.det.norm.channels.len(), self.net.n_seen());
-        if step.dim() != m {
-            return Err(ResidueError::StepDim { step_idx: k, what: "r_k", expected: m, got: step.dim() }.into());
-        }
-        if step.s_k.len() != m * m {
-            return Err(ResidueError::StepDim { step_idx: k, what: "S_k", expected: m * m, got: step.s_k.len() }.into());
-        }
-        for (what, finite) in [
-            ("r_k", step.r_k.iter().all(|v| v.is_finite())),
-            ("S_k", step.s_k.iter().all(|v| v.is_finite())),
-            ("nis", step.nis.is_finite()),
-        ] {
-            if !finite {
-                return Err(ResidueError::NonFinite { step_idx: k, what }.into());
-            }
-        }
-        self.det.norm.apply(step, &mut self.x);
-        let score = self.score_newest()?;
-        if !score.is_finite() {
-            return Err(DetectError::Numerical { what: format!("non-finite QUADFormer score at step {k}") });
-        }
-        Ok(OnlineDecision { score, alarm: score > self.det.stream_threshold })
-    }
-
-    fn reset(&mut self) {
-        self.net.reset();
-    }
-}
+mod online;
 
 #[cfg(test)]
 mod tests;

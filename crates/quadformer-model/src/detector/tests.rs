@@ -3,7 +3,7 @@
 
 use std::sync::OnceLock;
 
-use ekf_residue::LabelledSeries;
+use ekf_residue::{LabelledSeries, ResidueError, ResidueStep};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, Normal};
@@ -212,6 +212,37 @@ fn online_matches_batch_in_every_mode() {
         let batch = det.score(f.series()).unwrap();
         let mut online = det.online();
         let last = f.series().steps().map(|s| online.update(&s).unwrap()).last().unwrap();
+        assert!((last.score - batch[L - 1]).abs() < 1e-6, "{:?}: {} vs {}", r.mode, last.score, batch[L - 1]);
+    }
+}
+
+/// A detector whose network the streaming engine does not represent streams through the candle
+/// forward pass on the sliding window: the same decisions as the engine, step by step through
+/// the padding and the sliding, and the batch score of a window's last step, in every mode.
+#[test]
+fn without_the_engine_the_online_detector_streams_through_candle() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("qf.json");
+    save(fitted(), &path);
+    let long = flight(3 * L, 34, 4.0, false);
+    let one_window = flight(L, 35, 4.0, false);
+    for r in fitted().mode_results() {
+        let mut engine = QuadFormerDetector::load(&path).unwrap();
+        engine.chosen = *r;
+        let mut candle = QuadFormerDetector::load(&path).unwrap();
+        candle.chosen = *r;
+        // Forced: the fallback a network the engine cannot represent gets.
+        candle.streaming = None;
+        assert!(engine.streams_with_engine() && !candle.streams_with_engine());
+        let (mut a, mut b) = (engine.online(), candle.online());
+        for (k, step) in long.series().steps().enumerate() {
+            let (da, db) = (a.update(&step).unwrap(), b.update(&step).unwrap());
+            assert!((da.score - db.score).abs() < 1e-6, "{:?}, step {k}: {} vs {}", r.mode, da.score, db.score);
+            assert_eq!(da.alarm, db.alarm, "{:?}, step {k}", r.mode);
+        }
+        b.reset();
+        let batch = candle.score(one_window.series()).unwrap();
+        let last = one_window.series().steps().map(|s| b.update(&s).unwrap()).last().unwrap();
         assert!((last.score - batch[L - 1]).abs() < 1e-6, "{:?}: {} vs {}", r.mode, last.score, batch[L - 1]);
     }
 }

@@ -43,6 +43,7 @@ fn network(cfg: &NetConfig, seed: u64) -> QuadFormerNet {
 /// Streams `n` residues through the engine and compares every step with the candle pass.
 fn agrees_with_candle(cfg: &NetConfig, with_tcd: bool) {
     let net = network(cfg, 7);
+    assert_eq!(StreamingNet::unsupported(&net), None);
     let mut engine = StreamingNet::new(&net).unwrap();
     let xs = residues(2 * L + 5, 3);
     for (k, x) in xs.iter().enumerate() {
