@@ -24,11 +24,15 @@
 //!   `∂/∂β = Σ_rows g`.
 //!
 //! The backward passes return constants (no second derivatives), which is all training needs.
-//! Every op takes `f32` tensors on the CPU and is an error otherwise.
+//! The kernels take `f32` tensors on the CPU and are an error for another type. On another
+//! device (a CUDA build of candle) each function runs its definition composed from candle's
+//! ops instead ([`composed`]), the same function with candle's automatic backward.
 
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, CustomOp3, Layout, Shape, Storage, Tensor};
 
 use crate::vmath;
+
+pub mod composed;
 
 /// `1/√(2π)`.
 const FRAC_1_SQRT_2PI: f32 = 0.398_942_3;
@@ -36,8 +40,11 @@ const FRAC_1_SQRT_2PI: f32 = 0.398_942_3;
 /// The erf GELU `x Φ(x)`, element-wise (candle's `gelu_erf` up to `3·10⁻⁷ |x|`).
 ///
 /// # Errors
-/// A dtype other than `f32`, a device other than the CPU.
+/// A dtype other than `f32` on the CPU.
 pub fn gelu(x: &Tensor) -> candle_core::Result<Tensor> {
+    if !x.device().is_cpu() {
+        return composed::gelu(x);
+    }
     let x = x.contiguous()?;
     if x.track_op() { x.apply_op1(Gelu) } else { x.apply_op1_no_bwd(&Gelu) }
 }
@@ -45,8 +52,11 @@ pub fn gelu(x: &Tensor) -> candle_core::Result<Tensor> {
 /// Softmax over the last axis.
 ///
 /// # Errors
-/// A dtype other than `f32`, a device other than the CPU, a rank-0 or empty last axis.
+/// A dtype other than `f32` on the CPU, a rank-0 or empty last axis.
 pub fn softmax_last_dim(x: &Tensor) -> candle_core::Result<Tensor> {
+    if !x.device().is_cpu() {
+        return composed::softmax_last_dim(x);
+    }
     let x = x.contiguous()?;
     if x.track_op() { x.apply_op1(Softmax) } else { x.apply_op1_no_bwd(&Softmax) }
 }
@@ -54,8 +64,11 @@ pub fn softmax_last_dim(x: &Tensor) -> candle_core::Result<Tensor> {
 /// `x + b` with the bias `b` (`d` elements) added to every row of `x` (last axis `d`).
 ///
 /// # Errors
-/// Shapes that do not fit, a dtype other than `f32`, a device other than the CPU.
+/// Shapes that do not fit, a dtype other than `f32` on the CPU.
 pub fn add_bias(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
+    if !x.device().is_cpu() {
+        return composed::add_bias(x, bias);
+    }
     let (x, bias) = (x.contiguous()?, bias.contiguous()?);
     if x.track_op() || bias.track_op() { x.apply_op2(&bias, AddBias) } else { x.apply_op2_no_bwd(&bias, &AddBias) }
 }
@@ -64,8 +77,11 @@ pub fn add_bias(x: &Tensor, bias: &Tensor) -> candle_core::Result<Tensor> {
 /// guard `eps`.
 ///
 /// # Errors
-/// Shapes that do not fit, a dtype other than `f32`, a device other than the CPU.
+/// Shapes that do not fit, a dtype other than `f32` on the CPU.
 pub fn layer_norm(x: &Tensor, gain: &Tensor, bias: &Tensor, eps: f32) -> candle_core::Result<Tensor> {
+    if !x.device().is_cpu() {
+        return composed::layer_norm(x, gain, bias, eps);
+    }
     let (x, gain, bias) = (x.contiguous()?, gain.contiguous()?, bias.contiguous()?);
     let op = LayerNorm { eps };
     if x.track_op() || gain.track_op() || bias.track_op() {
@@ -450,15 +466,6 @@ mod tests {
         (max_diff(&a, &b), max_diff(ga.get(x).unwrap(), gb.get(x).unwrap()))
     }
 
-    /// The layer norm composed from candle's ops (the definition the kernel replaces).
-    fn composed_norm(x: &Tensor, gain: &Tensor, bias: &Tensor, eps: f64) -> Tensor {
-        let mu = x.mean_keepdim(D::Minus1).unwrap();
-        let xc = x.broadcast_sub(&mu).unwrap();
-        let var = xc.sqr().unwrap().mean_keepdim(D::Minus1).unwrap();
-        let xn = xc.broadcast_div(&(var + eps).unwrap().sqrt().unwrap()).unwrap();
-        xn.broadcast_mul(gain).unwrap().broadcast_add(bias).unwrap()
-    }
-
     /// Softmax by blocks of rows gives the bits of the softmax of each row on its own, also for
     /// a last block of fewer rows, and each row's `Σ c ln c`.
     #[test]
@@ -526,7 +533,7 @@ mod tests {
             var(&[0.0, 1.0, 2.0, -1.0, 0.3, 0.0], &[6]),
         );
         let ours = layer_norm(&x, &gain, &bias, 1e-5).unwrap();
-        let theirs = composed_norm(&x, &gain, &bias, 1e-5);
+        let theirs = composed::layer_norm(&x, &gain, &bias, 1e-5).unwrap();
         assert!(max_diff(&ours, &theirs) < 1e-5);
         let (ga, gb) = (weighted_sum(&ours).backward().unwrap(), weighted_sum(&theirs).backward().unwrap());
         for v in [&x, &gain, &bias] {
@@ -549,6 +556,38 @@ mod tests {
         assert!(softmax_last_dim(&empty).is_err());
     }
 
+    /// The composed path of every block (what runs on a device without the kernels) gives the
+    /// kernels' values and gradients, within `f32` rounding.
+    #[test]
+    fn composed_paths_match_the_kernels() {
+        let xv: Vec<f32> = (0..5 * 7).map(|i| ((i * 31) % 17) as f32 * 0.6 - 4.5).chain([0.0, -0.0, 30.0]).collect();
+        let n = xv.len() / 2 * 2;
+        let x = var(&xv[..n], &[n / 2, 2]);
+        let (dv, dg) = compare1(&x, |t| gelu(t).unwrap(), |t| composed::gelu(t).unwrap());
+        assert!(dv < 1e-6 && dg < 1e-5, "gelu: value {dv}, gradient {dg}");
+        let x = var(&xv[..35], &[5, 7]);
+        let (dv, dg) = compare1(&x, |t| softmax_last_dim(t).unwrap(), |t| composed::softmax_last_dim(t).unwrap());
+        assert!(dv < 1e-6 && dg < 1e-5, "softmax: value {dv}, gradient {dg}");
+        let (gain, bias) =
+            (var(&[1.5, 0.5, -1.0, 2.0, 1.0, 0.1, 0.7], &[7]), var(&[0.0, 1.0, 2.0, -1.0, 0.3, 0.0, -0.2], &[7]));
+        let pairs = [
+            (layer_norm(&x, &gain, &bias, 1e-5).unwrap(), composed::layer_norm(&x, &gain, &bias, 1e-5).unwrap()),
+            (add_bias(&x, &bias).unwrap(), composed::add_bias(&x, &bias).unwrap()),
+        ];
+        for (name, (ours, theirs)) in ["layer norm", "bias"].iter().zip(pairs) {
+            assert!(max_diff(&ours, &theirs) < 1e-5, "{name}: value");
+            let (ga, gb) = (weighted_sum(&ours).backward().unwrap(), weighted_sum(&theirs).backward().unwrap());
+            for v in [&x, &gain, &bias] {
+                if let (Some(a), Some(b)) = (ga.get(v), gb.get(v)) {
+                    let d = max_diff(a, b);
+                    assert!(d < 1e-4, "{name}: gradient differs by {d}");
+                } else {
+                    assert_eq!(ga.get(v).is_some(), gb.get(v).is_some(), "{name}: the same variables get a gradient");
+                }
+            }
+        }
+    }
+
     proptest! {
         #[test]
         fn kernels_match_their_composed_definitions(v in proptest::collection::vec(-6f32..6.0, 24)) {
@@ -563,7 +602,7 @@ mod tests {
             let (dv, dg) = compare1(
                 &x,
                 |t| layer_norm(t, &gain, &bias, 1e-5).unwrap(),
-                |t| composed_norm(t, &gain, &bias, 1e-5),
+                |t| composed::layer_norm(t, &gain, &bias, 1e-5).unwrap(),
             );
             prop_assert!(dv < 1e-5 && dg < 1e-3, "layer norm: value {dv}, gradient {dg}");
         }

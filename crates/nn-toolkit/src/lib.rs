@@ -70,5 +70,5 @@ pub mod window;
 pub use alloc::tune_allocator;
 pub use error::{NnError, Result};
 pub use init::init_vars_seeded;
-pub use train::{EpochStats, TrainConfig, TrainReport, TrainableModel, train};
+pub use train::{EpochStats, TrainConfig, TrainReport, TrainableModel, train, train_on};
 pub use window::{Batch, Features, Normaliser, SeriesWindows, WindowConfig, Windows};

@@ -231,7 +231,8 @@ fn epoch_windows(windows: &Windows, per_epoch: usize, share: Option<f64>, rng: &
 }
 
 /// Trains the variables of `varmap` through `model` on `windows` (module docs for the loop),
-/// calling `valid(model)` after every epoch; lower validation metric is better.
+/// calling `valid(model)` after every epoch; lower validation metric is better. The batches are
+/// built on the CPU: [`train_on`] with [`Device::Cpu`].
 ///
 /// # Errors
 /// [`NnError::Config`] for a bad config, [`NnError::Data`] for no windows,
@@ -244,7 +245,24 @@ pub fn train<M: TrainableModel + ?Sized, E: From<NnError>>(
     cfg: &TrainConfig,
     valid: &mut dyn FnMut(&M) -> std::result::Result<f64, E>,
 ) -> std::result::Result<TrainReport, E> {
-    train_loop(model, varmap, windows, cfg, valid).map_err(|e| match e {
+    train_on(model, varmap, windows, cfg, &Device::Cpu, valid)
+}
+
+/// [`train`] with the mini-batches built on `device`, the device of the model's variables
+/// (the CPU, or a CUDA device in a build with candle's `cuda` feature). The shuffling and
+/// mirroring draws do not depend on the device.
+///
+/// # Errors
+/// As [`train`].
+pub fn train_on<M: TrainableModel + ?Sized, E: From<NnError>>(
+    model: &M,
+    varmap: &VarMap,
+    windows: &Windows,
+    cfg: &TrainConfig,
+    device: &Device,
+    valid: &mut dyn FnMut(&M) -> std::result::Result<f64, E>,
+) -> std::result::Result<TrainReport, E> {
+    train_loop(model, varmap, windows, cfg, device, valid).map_err(|e| match e {
         Failure::Toolkit(e) => E::from(e),
         Failure::Valid(e) => e,
     })
@@ -274,13 +292,13 @@ fn train_loop<M: TrainableModel + ?Sized, E>(
     varmap: &VarMap,
     windows: &Windows,
     cfg: &TrainConfig,
+    device: &Device,
     valid: &mut dyn FnMut(&M) -> std::result::Result<f64, E>,
 ) -> std::result::Result<TrainReport, Failure<E>> {
     cfg.check()?;
     if windows.is_empty() {
         return Err(NnError::Data { msg: "no training windows".into() }.into());
     }
-    let device = Device::Cpu;
     let params = ParamsAdamW { lr: cfg.lr, weight_decay: cfg.weight_decay, ..ParamsAdamW::default() };
     let mut opt = AdamW::new(varmap.all_vars(), params)?;
     let per_epoch = cfg.max_windows_per_epoch.unwrap_or(usize::MAX).min(windows.len());
@@ -316,7 +334,7 @@ fn train_loop<M: TrainableModel + ?Sized, E>(
         for (b, chunk) in idx.chunks(cfg.batch_size).enumerate() {
             let mirrored: Vec<bool> =
                 if cfg.mirror { chunk.iter().map(|_| rng.random_bool(0.5)).collect() } else { Vec::new() };
-            let batch = windows.batch_mirrored(chunk, &mirrored, &device)?;
+            let batch = windows.batch_mirrored(chunk, &mirrored, device)?;
             for phase in 0..model.n_phases() {
                 let loss = model.loss(&batch, phase)?;
                 let v = f64::from(loss.to_scalar::<f32>()?);

@@ -14,6 +14,7 @@
 
 use std::path::Path;
 
+use candle_core::Device;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
@@ -200,12 +201,22 @@ impl QuadFormerDetector {
         Ok(CheckpointFiles { manifest, weights })
     }
 
-    /// Loads a detector from the files of [`QuadFormerDetector::encode`] (checks in the module docs).
+    /// Loads a detector from the files of [`QuadFormerDetector::encode`] (checks in the module
+    /// docs) with its network on the CPU: [`QuadFormerDetector::load_on`] with
+    /// [`Device::Cpu`].
     ///
     /// # Errors
     /// [`ModelError::Io`] for a missing file; [`ModelError::Checkpoint`] naming the file for a
     /// malformed, truncated, corrupted or mismatched checkpoint.
     pub fn load(path: &Path) -> Result<Self> {
+        Self::load_on(path, &Device::Cpu)
+    }
+
+    /// [`QuadFormerDetector::load`] with the network's variables on `device`.
+    ///
+    /// # Errors
+    /// As [`QuadFormerDetector::load`].
+    pub fn load_on(path: &Path, device: &Device) -> Result<Self> {
         let text = read_bounded(path, MAX_MANIFEST_BYTES)?;
         let manifest: Manifest = serde_json::from_str(&text).map_err(|e| {
             ck(path, format!("malformed manifest at line {}, column {}: {}", e.line(), e.column(), json_message(&e)))
@@ -250,7 +261,7 @@ impl QuadFormerDetector {
         let dim = manifest.normaliser.dim();
         manifest.normaliser.check().map_err(|e| ck(path, e.to_string()))?;
         check_results(path, &manifest)?;
-        let mut net = QuadFormerNet::new(&manifest.config.net, manifest.config.window.len, dim, 0)?;
+        let mut net = QuadFormerNet::new_on(&manifest.config.net, manifest.config.window.len, dim, 0, device)?;
         {
             let mut expected: Vec<String> = net
                 .varmap()

@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{ModelError, Result};
 use crate::model::{GradFlow, LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet};
 use crate::streaming::StreamingNet;
-use nn_toolkit::train::{TrainConfig, TrainReport, train};
+use nn_toolkit::train::{TrainConfig, TrainReport, train_on};
 use nn_toolkit::window::{Normaliser, WindowConfig, Windows};
 
 /// How per-step scores are formed from the network outputs (module docs).
@@ -277,7 +277,7 @@ fn raw_scores(
     let mut acc: [Vec<f32>; 3] = Default::default();
     let idx: Vec<usize> = (0..windows.len()).collect();
     for chunk in idx.chunks(score.batch_size) {
-        let batch = windows.batch(chunk, &Device::Cpu)?;
+        let batch = windows.batch(chunk, net.device())?;
         let parts = window_scores(net, &batch.x, score.temperature)?;
         for (a, p) in acc.iter_mut().zip(parts) {
             a.extend(p);
@@ -364,7 +364,26 @@ impl Fit for QuadFormerConfig {
     type Detector = QuadFormerDetector;
     type Error = ModelError;
 
+    /// Trains on the CPU: [`QuadFormerConfig::fit_on`] with [`Device::Cpu`].
     fn fit(&self, train_split: &LabelledResidues, valid: &LabelledResidues) -> Result<QuadFormerDetector> {
+        self.fit_on(train_split, valid, &Device::Cpu)
+    }
+}
+
+impl QuadFormerConfig {
+    /// Trains a detector with the network, its batches and its scoring on `device` (the CPU, or
+    /// a CUDA device in a build with candle's `cuda` feature; the kernels of
+    /// `nn_toolkit::fused` and [`crate::js`] run composed from candle's ops there). The
+    /// streaming engine runs on the CPU whatever the device.
+    ///
+    /// # Errors
+    /// As [`Fit::fit`]: bad configuration, empty or unlabelled data, candle errors.
+    pub fn fit_on(
+        &self,
+        train_split: &LabelledResidues,
+        valid: &LabelledResidues,
+        device: &Device,
+    ) -> Result<QuadFormerDetector> {
         self.check()?;
         if train_split.n_steps() == 0 {
             return Err(ModelError::Data { msg: "empty training split".into() });
@@ -383,7 +402,7 @@ impl Fit for QuadFormerConfig {
         }
         let norm = Normaliser::fit(train_split, self.window.features)?;
         let windows = Windows::from_split(train_split, &norm, &self.window)?;
-        let mut net = QuadFormerNet::new(&self.net, self.window.len, norm.dim(), self.train.seed)?;
+        let mut net = QuadFormerNet::new_on(&self.net, self.window.len, norm.dim(), self.train.seed, device)?;
         let report = {
             let trainer = MinMaxTrainer { net: &net, loss: self.loss };
             let epoch_score = ScoreConfig { stride: self.score.epoch_stride, ..self.score.clone() };
@@ -391,7 +410,7 @@ impl Fit for QuadFormerConfig {
                 let cal = calibrate(t.net, &norm, &epoch_score, valid)?;
                 Ok(-chosen(&cal.results, self.score.mode)?.valid_f1)
             };
-            train(&trainer, net.varmap(), &windows, &self.train, &mut valid_metric)?
+            train_on(&trainer, net.varmap(), &windows, &self.train, device, &mut valid_metric)?
         };
         net.freeze()?;
         let cal = calibrate(&net, &norm, &self.score, valid)?;

@@ -14,8 +14,12 @@
 //! and one backward ([`nn_toolkit::vmath`]). `p` may be shared by the batch (leading axis 1, the
 //! TPC prior); its gradient is then summed over the batch. Each input's gradient is passed,
 //! stopped or reversed ([`GradFlow`]), which is how the min-max phases split the discrepancy.
+//!
+//! The kernel runs on the CPU; on another device (a CUDA build of candle) the divergence is
+//! composed from candle's ops ([`js_divergence_composed`]), the same function with candle's
+//! automatic backward.
 
-use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
+use candle_core::{CpuStorage, CustomOp2, D, Layout, Shape, Tensor};
 
 use nn_toolkit::fused::{f32_slice, with_f32};
 use nn_toolkit::vmath;
@@ -48,12 +52,41 @@ pub fn js_divergence_with(p: &Tensor, q: &Tensor, p_flow: GradFlow, q_flow: Grad
         GradFlow::Stop => t.detach().contiguous(),
         GradFlow::Pass | GradFlow::Reverse => t.contiguous(),
     };
+    if !q.device().is_cpu() {
+        return js_divergence_composed(&flow(p, p_flow)?, &flow(q, q_flow)?);
+    }
     let (p, q) = (input(p, p_flow)?, input(q, q_flow)?);
     let op = JsDivergence { p_flow, q_flow };
     if !p.track_op() && !q.track_op() {
         return p.apply_op2_no_bwd(&q, &op);
     }
     p.apply_op2(&q, op)
+}
+
+/// `t` with its gradient passed, stopped or reversed: for [`GradFlow::Reverse`],
+/// `2 sg(t) − t`, whose value is `t` (exactly: `2t` is exact and so is `2t − t`) and whose
+/// gradient is `−1`.
+fn flow(t: &Tensor, flow: GradFlow) -> candle_core::Result<Tensor> {
+    match flow {
+        GradFlow::Pass => Ok(t.clone()),
+        GradFlow::Stop => Ok(t.detach()),
+        GradFlow::Reverse => (t.detach() * 2.0)? - t,
+    }
+}
+
+/// `JS(p, q)` over the last axis composed from candle's element-wise ops (module docs' formula,
+/// with candle's automatic backward): what [`js_divergence_with`] runs off the CPU. `p` has the
+/// shape of `q` or leading axis 1.
+///
+/// # Errors
+/// candle errors: shapes that do not broadcast.
+pub fn js_divergence_composed(p: &Tensor, q: &Tensor) -> candle_core::Result<Tensor> {
+    let eps = f64::from(JS_EPS);
+    let p = p.broadcast_as(q.shape())?;
+    let ln_m = (((&p + q)? * 0.5)? + eps)?.log()?;
+    let kl_pm = (&p * ((&p + eps)?.log()? - &ln_m)?)?.sum(D::Minus1)?;
+    let kl_qm = (q * ((q + eps)?.log()? - &ln_m)?)?.sum(D::Minus1)?;
+    (kl_pm + kl_qm)? * 0.5
 }
 
 /// [`js_divergence_with`] with both gradients passed.
@@ -242,20 +275,13 @@ impl CustomOp2 for JsDivergence {
 
 #[cfg(test)]
 mod tests {
-    use candle_core::{D, DType, Device, Var};
+    use candle_core::{DType, Device, Var};
     use proptest::prelude::*;
 
     use super::*;
 
-    /// The divergence composed from candle's element-wise ops (the definition the kernel
-    /// replaces).
     fn composed(p: &Tensor, q: &Tensor) -> Tensor {
-        let eps = f64::from(JS_EPS);
-        let p = p.broadcast_as(q.shape()).unwrap();
-        let ln_m = (((&p + q).unwrap() * 0.5).unwrap() + eps).unwrap().log().unwrap();
-        let kl_pm = (&p * ((&p + eps).unwrap().log().unwrap() - &ln_m).unwrap()).unwrap().sum(D::Minus1).unwrap();
-        let kl_qm = (q * ((q + eps).unwrap().log().unwrap() - &ln_m).unwrap()).unwrap().sum(D::Minus1).unwrap();
-        ((kl_pm + kl_qm).unwrap() * 0.5).unwrap()
+        js_divergence_composed(p, q).unwrap()
     }
 
     /// Rows of a softmax of `raw`, shape `dims`.
@@ -307,6 +333,35 @@ mod tests {
         assert_eq!(max_diff(&flipped, pass.get(&q).unwrap()), 0.0);
         let none = js_divergence_with(&p, &q, GradFlow::Stop, GradFlow::Stop).unwrap();
         assert!(none.sum_all().unwrap().backward().unwrap().get(&q).is_none());
+    }
+
+    /// The composed path (what runs off the CPU) gives the kernel's values and gradients with
+    /// every flow of the gradients, also with a prior shared by the batch.
+    #[test]
+    fn composed_path_matches_the_kernel_with_every_flow() {
+        let raw_p: Vec<f32> = (0..2 * 4 * 4).map(|i| ((i * 13) % 7) as f32 / 7.0).collect();
+        let raw_q: Vec<f32> = (0..3 * 2 * 4 * 4).map(|i| ((i * 29) % 11) as f32 / 11.0).collect();
+        let p = Var::from_tensor(&distributions(&raw_p, &[1, 2, 4, 4])).unwrap();
+        let q = Var::from_tensor(&distributions(&raw_q, &[3, 2, 4, 4])).unwrap();
+        let flows = [GradFlow::Pass, GradFlow::Stop, GradFlow::Reverse];
+        for (p_flow, q_flow) in flows.iter().flat_map(|&a| flows.iter().map(move |&b| (a, b))) {
+            let kernel = js_divergence_with(&p, &q, p_flow, q_flow).unwrap();
+            let comp = js_divergence_composed(&flow(&p, p_flow).unwrap(), &flow(&q, q_flow).unwrap()).unwrap();
+            assert!(max_diff(&kernel, &comp) < 1e-6, "{p_flow:?} {q_flow:?}: values");
+            let (gk, gc) = (kernel.sum_all().unwrap().backward().unwrap(), comp.sum_all().unwrap().backward().unwrap());
+            for (name, v, f) in [("p", &p, p_flow), ("q", &q, q_flow)] {
+                match (gk.get(v), gc.get(v)) {
+                    (Some(a), Some(b)) => assert!(max_diff(a, b) < 1e-4, "{p_flow:?} {q_flow:?}: gradient of {name}"),
+                    (a, b) => {
+                        // A stopped input gets no gradient from the kernel, a zero one at most
+                        // from the composed ops.
+                        assert_eq!(f, GradFlow::Stop, "{name}");
+                        assert!(a.is_none());
+                        assert!(b.is_none_or(|g| max_diff(g, &g.zeros_like().unwrap()) == 0.0));
+                    }
+                }
+            }
+        }
     }
 
     #[test]
