@@ -1,4 +1,5 @@
-//! The QUADFormer attack detector (paper sec:attack_detector, alg:alg2) in candle, on the CPU.
+//! The QUADFormer attack detector (paper sec:attack_detector, alg:alg2) in candle, on the CPU or a
+//! device its caller passes ([`QuadFormerConfig::fit_on`]).
 //!
 //! Layer: this crate owns the QUADFormer network, its losses and min-max trainer, checkpoints and
 //! streaming inference. It trains with the CPU toolkit of `nn-toolkit` (windowing, the training
@@ -7,6 +8,8 @@
 //! baselines or the evaluation.
 //!
 //! The detector:
+//! - [`weights`]: [`QuadFormerWeights`], every weight of the network as one typed structure,
+//!   and the only place that names the variables (the checkpoints' names);
 //! - [`model`]: the network — UAV Attack Attention with TPC (eq:TPC) and DCM
 //!   (eq:first_layer_attention, eq:cross_layer_attention), reconstruction and classification
 //!   heads, TCD (Jensen–Shannon, [`js::js_divergence`], one fused kernel) and the min-max losses with the
@@ -17,11 +20,13 @@
 //!   [`QuadFormerDetector`] implements `Detector` with four scoring modes ([`ScoreMode`]:
 //!   alg:alg2's `softmax(−TCD)`, the Anomaly Transformer criterion, the classifier probability,
 //!   a combination) whose thresholds are chosen on the validation split, and a streaming
-//!   [`OnlineQuadFormer`];
+//!   [`OnlineQuadFormer`] that runs the streaming engine, or the candle forward pass on its
+//!   window for a network the engine cannot represent;
 //! - [`streaming`]: [`streaming::StreamingNet`], the frozen network outside candle that the
 //!   streaming detector runs (layer 1 reused across windows, the last layer on the newest step,
 //!   attention scores refactored to fewer multiply-adds, the TCD with one logarithm per entry,
-//!   products through the bounds-checked `nn_toolkit::matmul` into buffers allocated once);
+//!   products through the bounds-checked `nn_toolkit::matmul` into buffers allocated once), read
+//!   from [`QuadFormerWeights`] into a ring whose slots are named;
 //! - [`checkpoint`]: safetensors weights + versioned JSON manifest with integrity checks.
 //!
 //! Usage and training guide: `docs/quadformer.md`.

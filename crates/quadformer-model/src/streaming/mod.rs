@@ -2,7 +2,7 @@
 //! sliding window (reconstruction, classifier logit and, when asked, the TCD of every step),
 //! updated one residue at a time with the work and memory fixed in advance.
 //!
-//! It computes what [`QuadFormerNet::forward_steps`] with [`Steps::Last`] computes, from the
+//! It computes what [`crate::model::QuadFormerNet::forward_steps`] with [`crate::model::Steps::Last`] computes, from the
 //! same weights, in plain `f32` buffers ([`nn_toolkit::matmul`], the element-wise kernels of
 //! [`nn_toolkit::fused`] and [`crate::js`]), and does less work in seven ways, exact but for rounding:
 //!
@@ -12,7 +12,7 @@
 //!    residue part is computed once, when the residue arrives, and kept in a ring of `l`
 //!    slots; the position part is computed once, when the engine is built. A new window's
 //!    layer-1 input and projections are the ring plus the position part: no matrix product.
-//! 2. **The last layer works on the newest row** (as [`Steps::Last`]): one query, one output
+//! 2. **The last layer works on the newest row** (as [`crate::model::Steps::Last`]): one query, one output
 //!    row, one feed-forward row. Its value product is reassociated,
 //!    `c (H W_V + 1 b_V) = (c H) W_V + b_V` (the attention row `c` sums to 1), so the window's
 //!    values are never formed.
@@ -24,10 +24,10 @@
 //! 5. **The TCD takes one logarithm per entry.** `JS(T, C) = ½ (Σ T ln T + Σ C ln C) −
 //!    Σ M ln M` with `M = (T + C)/2`: the prior's `Σ T ln T` is frozen with it, and the
 //!    attention's comes from its scores, `Σ C ln C = Σ C (s − max s) − ln Σ exp(s − max s)`, as
-//!    the softmax forms `C`. Only `ln(M + ε)` is taken per entry, from [`vmath::ln_fast`]
-//!    (within 1.4 units in the last place, against 0.7 for [`vmath::ln`], at four fifths of its
+//!    the softmax forms `C`. Only `ln(M + ε)` is taken per entry, from [`nn_toolkit::vmath::ln_fast`]
+//!    (within 1.4 units in the last place, against 0.7 for [`nn_toolkit::vmath::ln`], at four fifths of its
 //!    cost). The softmax and these terms run over blocks of rows that fill whole vectors
-//!    ([`vmath::row_block`]), so no row leaves a remainder to scalar code.
+//!    ([`nn_toolkit::vmath::row_block`]), so no row leaves a remainder to scalar code.
 //! 6. **With DCM and one head, no layer after the first forms queries and keys.** Layer `h`
 //!    scores its queries against the keys of layer `h − 1`, `Kʰ⁻¹ = H' W'_K + b'_K` with `H'`
 //!    that layer's input, so `Q Kʰ⁻¹ᵀ = (H W_Q + b_Q)(W'_K H'ᵀ + b'_Kᵀ)`. Terms constant along a
@@ -52,6 +52,13 @@
 //!
 //! Until `l` residues have been seen the window is padded at the front with the first one, as
 //! in [`nn_toolkit::window`].
+//!
+//! The engine reads the network's typed weights ([`crate::weights::QuadFormerWeights`]) and
+//! nothing by name: `build` prepares them (host copies in `dense`, the products formed once, the
+//! score form of each layer), `layout` names the slots of a ring row, and `engine` holds the
+//! ring and the buffers and makes the decision. [`StreamingNet::unsupported`] names a network it
+//! cannot represent; the streaming detector then runs the candle forward pass instead
+//! ([`crate::detector::OnlineQuadFormer`]).
 
 mod build;
 mod dense;
