@@ -26,9 +26,7 @@ use ekf_residue::Detector;
 use quadformer_model::{ModelError, QuadFormerDetector};
 
 use crate::cli::CliError;
-use crate::cli::train::{
-    ModelManifest, Storage, check_same_channels, read_manifest, read_split, sha256_hex, window_len,
-};
+use crate::cli::train::{ModelManifest, Storage, check_same_channels, read_manifest, read_split, sha256_hex};
 use crate::io::{Input, IoError, Output, check_outputs, read_residues, write_text_atomic};
 use crate::runner::fit;
 
@@ -77,7 +75,7 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         path: args.input.clone(),
         msg: format!("{} cannot score it: {e}", manifest.method.name()),
     })?;
-    if let Some(len) = window_len(manifest.method, &manifest.configs)
+    if let Some(len) = manifest.method.window_len(&manifest.configs)
         && input.series().len() < len
     {
         eprintln!(

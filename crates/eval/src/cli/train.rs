@@ -30,7 +30,8 @@ use crate::io::{
     CovarianceLayout, Input, IoError, Output, Overwrite, check_dir_output, check_outputs, read_residues,
     write_bytes_atomic, write_dir_atomic, write_residues, write_text_atomic,
 };
-use crate::runner::{Method, MethodConfigs, fit};
+use crate::methods::{Method, MethodConfigs};
+use crate::runner::fit;
 
 /// Name of the model manifest in a model directory.
 pub const MODEL_FILE: &str = "model.json";
@@ -45,18 +46,6 @@ pub const DATA_DIR: &str = "data";
 /// Fewest training residue steps `train` fits on (more for windowed methods: one window).
 pub const MIN_TRAIN_STEPS: usize = 10;
 
-/// Window length of a windowed method (QUADFormer, CNN, LSTM, SVM), `None` for the others.
-#[must_use]
-pub fn window_len(method: Method, cfgs: &MethodConfigs) -> Option<usize> {
-    match method {
-        Method::QuadFormer => Some(cfgs.quadformer.window.len),
-        Method::Cnn => Some(cfgs.cnn.0.window.len),
-        Method::Lstm => Some(cfgs.lstm.0.window.len),
-        Method::Svm => Some(cfgs.svm.window),
-        _ => None,
-    }
-}
-
 /// Checks that the splits can fit `method`: at least [`MIN_TRAIN_STEPS`] training steps and
 /// one window of them; validation with both attacked and clean steps, between which the
 /// threshold is chosen.
@@ -66,7 +55,7 @@ fn check_enough_data(
     train: &LabelledResidues,
     valid: &LabelledResidues,
 ) -> Result<(), CliError> {
-    let window = window_len(args.method, cfgs);
+    let window = args.method.window_len(cfgs);
     let need = window.unwrap_or(0).max(MIN_TRAIN_STEPS);
     if train.n_steps() < need {
         let why = match window {
@@ -274,14 +263,8 @@ pub fn method_configs(path: Option<&Path>, quick: bool, seed: u64) -> Result<Met
     let cfgs: MethodConfigs =
         merged.try_into().map_err(|e: toml::de::Error| config_err(e.message().trim().to_owned()))?;
     // Sizes are checked against their budgets here, before any data is read.
-    let checks: [(&str, Result<(), String>); 4] = [
-        ("quadformer", cfgs.quadformer.check().map_err(|e| e.to_string())),
-        ("cnn", cfgs.cnn.0.check().map_err(|e| e.to_string())),
-        ("lstm", cfgs.lstm.0.check().map_err(|e| e.to_string())),
-        ("svm", cfgs.svm.check().map_err(|e| e.to_string())),
-    ];
-    for (table, r) in checks {
-        r.map_err(|e| config_err(format!("[{table}]: {e}")))?;
+    for &m in Method::ALL {
+        m.check(&cfgs).map_err(|e| config_err(format!("[{}]: {e}", m.config_key())))?;
     }
     Ok(cfgs.seeded(seed))
 }
