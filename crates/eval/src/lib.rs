@@ -11,6 +11,7 @@ pub mod closed_loop;
 pub mod dataset;
 pub mod io;
 pub mod methods;
+pub mod model_dir;
 /// The detection metrics (`detection-metrics`), under the name the experiment code uses.
 pub use detection_metrics as metrics;
 pub mod plot;

@@ -10,13 +10,16 @@
 //! the `[methods.<field>]` table of a TOML file) and every dispatch from a [`Method`] to its
 //! entry, so adding a detector is adding one entry.
 
+use baselines::JsonState;
 use ekf_residue::{Detector, Fit, LabelledResidues};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use baselines::{BhtConfig, Chi2Config, CnnConfig, CusumConfig, LstmConfig, Px4GateConfig, SprtConfig, SvmConfig};
 use nn_toolkit::WindowConfig;
-use quadformer_model::QuadFormerConfig;
+use quadformer_model::{QuadFormerConfig, QuadFormerDetector};
+
+use crate::model_dir::{ModelDirError, SavedState, StateFile};
 
 /// The row group of a method in Tables I and II.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -109,6 +112,19 @@ pub trait MethodSpec:
     fn check(&self) -> Result<(), String> {
         Ok(())
     }
+
+    /// Encodes the fitted state as files of a model directory
+    /// ([`crate::model_dir`]).
+    ///
+    /// # Errors
+    /// The encoder's error, as text.
+    fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String>;
+
+    /// Decodes the fitted state saved by [`MethodSpec::save`].
+    ///
+    /// # Errors
+    /// [`ModelDirError`] naming the file that is missing, malformed, corrupt or inconsistent.
+    fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError>;
 }
 
 /// An operation generic over the configuration type of one method ([`Method::visit`]).
@@ -224,12 +240,57 @@ fn seed_neural(nn: &mut baselines::NeuralConfig, seed: u64) {
     nn.train.seed = seed;
 }
 
+/// The state file of a detector saved as JSON of its fitted parameters.
+pub const JSON_STATE_FILE: &str = "detector.json";
+/// The weights of a saved CNN or LSTM, beside its [`JSON_STATE_FILE`] manifest.
+pub const NEURAL_WEIGHTS_FILE: &str = "detector.safetensors";
+/// The manifest of a saved QUADFormer checkpoint (weights beside it, `.safetensors`).
+pub const CHECKPOINT_FILE: &str = "quadformer.json";
+
+/// Saves a detector as JSON of its fitted parameters.
+fn save_json<D: JsonState>(det: &D) -> Result<Vec<StateFile>, String> {
+    Ok(vec![StateFile::text(JSON_STATE_FILE, det.to_json().map_err(|e| e.to_string())?)])
+}
+
+/// Loads a detector saved by [`save_json`].
+fn load_json<D: JsonState>(state: &SavedState<'_>) -> Result<D, ModelDirError> {
+    let text = state.read_text(JSON_STATE_FILE)?;
+    D::from_json(&text).map_err(|e| ModelDirError::Invalid { path: state.path(JSON_STATE_FILE), msg: e.to_string() })
+}
+
+/// Saves a CNN or LSTM: manifest and weights.
+fn save_neural<N: baselines::nn::PerStepNet>(det: &baselines::nn::NeuralDetector<N>) -> Result<Vec<StateFile>, String> {
+    let files = det.encode().map_err(|e| e.to_string())?;
+    Ok(vec![
+        StateFile::text(JSON_STATE_FILE, files.manifest),
+        StateFile { name: NEURAL_WEIGHTS_FILE.into(), bytes: files.weights },
+    ])
+}
+
+/// Loads a CNN or LSTM saved by [`save_neural`] with `decode`.
+fn load_neural<D>(
+    state: &SavedState<'_>,
+    decode: impl FnOnce(&str, &[u8]) -> baselines::Result<D>,
+) -> Result<D, ModelDirError> {
+    let manifest = state.read_text(JSON_STATE_FILE)?;
+    let weights = state.read(NEURAL_WEIGHTS_FILE)?;
+    decode(&manifest, &weights).map_err(|e| ModelDirError::Invalid { path: state.path(JSON_STATE_FILE), msg: e.to_string() })
+}
+
 registry! {
     /// CUSUM on the NIS (Murguia & Ruths).
     Cusum(cusum: CusumConfig) {
         const SLUG: &'static str = "cusum";
         const NAME: &'static str = "CUSUM";
         const GROUP: MethodGroup = MethodGroup::Traditional;
+
+        fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String> {
+            save_json(det)
+        }
+
+        fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError> {
+            load_json(state)
+        }
     }
 
     /// Wald's sequential probability ratio test.
@@ -237,6 +298,14 @@ registry! {
         const SLUG: &'static str = "sprt";
         const NAME: &'static str = "SPRT";
         const GROUP: MethodGroup = MethodGroup::Traditional;
+
+        fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String> {
+            save_json(det)
+        }
+
+        fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError> {
+            load_json(state)
+        }
     }
 
     /// Binary hypothesis test (ellipsoid).
@@ -244,6 +313,14 @@ registry! {
         const SLUG: &'static str = "bht";
         const NAME: &'static str = "BHT";
         const GROUP: MethodGroup = MethodGroup::Traditional;
+
+        fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String> {
+            save_json(det)
+        }
+
+        fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError> {
+            load_json(state)
+        }
     }
 
     /// RBF support vector machine on residue windows.
@@ -269,6 +346,14 @@ registry! {
 
         fn check(&self) -> Result<(), String> {
             SvmConfig::check(self).map_err(|e| e.to_string())
+        }
+
+        fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String> {
+            save_json(det)
+        }
+
+        fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError> {
+            load_json(state)
         }
     }
 
@@ -298,6 +383,14 @@ registry! {
         fn check(&self) -> Result<(), String> {
             self.0.check().map_err(|e| e.to_string())
         }
+
+        fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String> {
+            save_neural(det)
+        }
+
+        fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError> {
+            load_neural(state, baselines::Cnn::decode)
+        }
     }
 
     /// LSTM on residue windows.
@@ -325,6 +418,14 @@ registry! {
 
         fn check(&self) -> Result<(), String> {
             self.0.check().map_err(|e| e.to_string())
+        }
+
+        fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String> {
+            save_neural(det)
+        }
+
+        fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError> {
+            load_neural(state, baselines::Lstm::decode)
         }
     }
 
@@ -358,6 +459,29 @@ registry! {
         fn check(&self) -> Result<(), String> {
             QuadFormerConfig::check(self).map_err(|e| e.to_string())
         }
+
+        fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String> {
+            let weights = quadformer_model::checkpoint::weights_file_name(CHECKPOINT_FILE);
+            let files = det.encode(&weights).map_err(|e| e.to_string())?;
+            Ok(vec![StateFile::text(CHECKPOINT_FILE, files.manifest), StateFile { name: weights, bytes: files.weights }])
+        }
+
+        fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError> {
+            let manifest = state.checked_path(CHECKPOINT_FILE)?;
+            let weights = quadformer_model::checkpoint::weights_file_name(CHECKPOINT_FILE);
+            state.checked_path(&weights)?;
+            // Checkpoint errors name their own file.
+            QuadFormerDetector::load(&manifest).map_err(|e| match e {
+                quadformer_model::ModelError::Checkpoint { path, msg } => ModelDirError::Invalid { path, msg },
+                quadformer_model::ModelError::Io { path, source } => {
+                    ModelDirError::Io(crate::io::IoError::Fs { path, op: "read", source })
+                }
+                other => ModelDirError::Invalid {
+                    path: manifest.clone(),
+                    msg: format!("cannot load the QUADFormer checkpoint: {other}"),
+                },
+            })
+        }
     }
 
     /// Chi-squared test on the NIS (extra row).
@@ -365,6 +489,14 @@ registry! {
         const SLUG: &'static str = "chi2";
         const NAME: &'static str = "Chi2";
         const GROUP: MethodGroup = MethodGroup::Extra;
+
+        fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String> {
+            save_json(det)
+        }
+
+        fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError> {
+            load_json(state)
+        }
     }
 
     /// PX4 EKF2-style GPS innovation gate (extra row).
@@ -373,6 +505,14 @@ registry! {
         const NAME: &'static str = "PX4 gate";
         const GROUP: MethodGroup = MethodGroup::Extra;
         const NEEDS_GPS: bool = true;
+
+        fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String> {
+            save_json(det)
+        }
+
+        fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError> {
+            load_json(state)
+        }
     }
 }
 
@@ -463,6 +603,46 @@ impl Method {
             }
         }
         self.visit(cfgs, Op(train, valid))
+    }
+}
+
+impl Method {
+    /// Fits this method as [`Method::fit`] does and encodes the fitted state
+    /// ([`MethodSpec::save`]).
+    ///
+    /// # Errors
+    /// The method's fit or save error, as text.
+    pub fn fit_and_save(
+        self,
+        cfgs: &MethodConfigs,
+        train: &LabelledResidues,
+        valid: &LabelledResidues,
+    ) -> Result<(Box<dyn Detector>, Vec<StateFile>), String> {
+        struct Op<'a>(&'a LabelledResidues, &'a LabelledResidues);
+        impl Visit for Op<'_> {
+            type Output = Result<(Box<dyn Detector>, Vec<StateFile>), String>;
+            fn visit<S: MethodSpec>(self, cfg: &S) -> Self::Output {
+                let det = cfg.fit(self.0, self.1).map_err(|e| e.to_string())?;
+                let files = S::save(&det).map_err(|e| format!("saving the fitted state: {e}"))?;
+                Ok((Box::new(det), files))
+            }
+        }
+        self.visit(cfgs, Op(train, valid))
+    }
+
+    /// Loads this method's fitted state saved by [`Method::fit_and_save`] (never fits).
+    ///
+    /// # Errors
+    /// [`ModelDirError`] naming the file.
+    pub fn load(self, state: &SavedState<'_>) -> Result<Box<dyn Detector>, ModelDirError> {
+        struct Op<'a, 's>(&'a SavedState<'s>);
+        impl Visit for Op<'_, '_> {
+            type Output = Result<Box<dyn Detector>, ModelDirError>;
+            fn visit<S: MethodSpec>(self, _cfg: &S) -> Self::Output {
+                Ok(Box::new(S::load(self.0)?))
+            }
+        }
+        self.visit(&MethodConfigs::default(), Op(state))
     }
 }
 

@@ -30,9 +30,8 @@ use resilient_fusion::scenario::{Case, Scenario, ScenarioConfig, run_case};
 use uav_dynamics::noise::NoiseShape;
 
 use crate::cli::CliError;
-use crate::cli::detect::load_detector;
 use crate::cli::residues::{ModelArg, flight_filter};
-use crate::cli::train::read_manifest;
+use crate::model_dir;
 use crate::closed_loop::{flight_from_dir, loop_metrics};
 use crate::dataset::{DatasetConfig, load_or_build};
 use crate::io::{Input, Output, check_outputs, write_into_dir_atomic, write_text_atomic};
@@ -206,14 +205,14 @@ pub fn make_detector(
         return Ok(FusionDetector::Nis);
     };
     if let Some(dir) = model {
-        let manifest = read_manifest(dir)?;
+        let manifest = model_dir::read_manifest(dir)?;
         if manifest.method != method {
             return Err(CliError::Input {
                 path: dir.to_owned(),
                 msg: format!("the model is {}, but --detector is {}", manifest.method.name(), which.label()),
             });
         }
-        return Ok(FusionDetector::Batch(load_detector(dir, &manifest)?));
+        return Ok(FusionDetector::Batch(model_dir::load(dir, &manifest)?));
     }
     let cfg = DatasetConfig {
         seed,
