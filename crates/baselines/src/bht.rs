@@ -52,7 +52,8 @@ impl Default for BhtConfig {
 }
 
 /// A fitted BHT detector.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Bht {
     channels: Vec<String>,
     mu: Vec<f64>,
@@ -61,6 +62,23 @@ pub struct Bht {
     n_samples: usize,
     gamma: f64,
     tuning: Tuning,
+}
+
+impl crate::JsonState for Bht {
+    fn check_state(&self) -> Result<()> {
+        use crate::state::{check_channels, check_finite, check_len, state_err};
+        check_channels(&self.channels)?;
+        let m = self.channels.len();
+        check_len("mu", self.mu.len(), m)?;
+        check_len("whiten", self.whiten.len(), m * m)?;
+        check_finite("mu", &self.mu)?;
+        check_finite("whiten", &self.whiten)?;
+        check_finite("gamma", &[self.gamma])?;
+        if self.n_samples == 0 {
+            return Err(state_err("n_samples: must be at least 1".into()));
+        }
+        Ok(())
+    }
 }
 
 impl Bht {

@@ -32,11 +32,19 @@ impl Default for Chi2Config {
 }
 
 /// A fitted chi-squared detector.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Chi2 {
     channels: Vec<String>,
     alpha: f64,
     tuning: Tuning,
+}
+
+impl crate::JsonState for Chi2 {
+    fn check_state(&self) -> Result<()> {
+        crate::state::check_channels(&self.channels)?;
+        crate::state::check_finite("alpha", &[self.alpha])
+    }
 }
 
 impl Chi2 {

@@ -66,12 +66,20 @@ impl Default for CusumConfig {
 }
 
 /// A fitted CUSUM detector.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Cusum {
     channels: Vec<String>,
     b: f64,
     tau: f64,
     tuning: Tuning,
+}
+
+impl crate::JsonState for Cusum {
+    fn check_state(&self) -> Result<()> {
+        crate::state::check_channels(&self.channels)?;
+        crate::state::check_finite("b, tau", &[self.b, self.tau])
+    }
 }
 
 impl Cusum {

@@ -26,6 +26,12 @@ pub enum BaselineError {
     /// Windowing or training of the shared toolkit (`nn-toolkit`) failed.
     #[error(transparent)]
     Nn(#[from] nn_toolkit::NnError),
+    /// A saved fitted state is malformed or inconsistent.
+    #[error("saved state: {msg}")]
+    State {
+        /// What is wrong, naming the field.
+        msg: String,
+    },
     /// The neural-network back end (candle) failed.
     #[error("candle failed in {context}: {msg}")]
     Candle {

@@ -21,8 +21,14 @@
 //! - LSTM: one forward `LSTM(m→h)` over the window ([`crate::lstm`]), `h = 64`, then
 //!   `Linear(h→1)` on every hidden state (decision 052). Only the past inside the
 //!   window is seen.
+//!
+//! Saved state ([`NeuralDetector::encode`], [`Cnn::decode`], [`Lstm::decode`]): the weights as
+//! safetensors and a JSON [`NeuralManifest`] (configuration, channels, normaliser, both
+//! thresholds, training report, size and SHA-256 of the weights); a decoded detector scores
+//! bit for bit what the fitted one scored.
 
 use candle_core::{D, DType, Device, Module, Tensor};
+use sha2::{Digest, Sha256};
 use candle_nn::{Conv1d, Conv1dConfig, Linear, VarBuilder, VarMap};
 use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
 use nn_toolkit::loss::masked_bce_with_logits;
@@ -225,6 +231,7 @@ impl PerStepNet for LstmNet {
 /// A fitted CNN or LSTM detector.
 pub struct NeuralDetector<N> {
     name: &'static str,
+    config: NeuralConfig,
     channels: Vec<String>,
     norm: Normaliser,
     net: N,
@@ -367,6 +374,7 @@ fn fit_neural<N: PerStepNet>(
     let report = train(&model, &varmap, &windows, &cfg.train, &mut valid_loss)?;
     let mut det = NeuralDetector {
         name,
+        config: cfg.clone(),
         channels,
         norm,
         net,
@@ -437,5 +445,177 @@ impl<N: PerStepNet> Detector for NeuralDetector<N> {
     /// windows covering a step, so the two agree only approximately).
     fn online_window(&self) -> usize {
         self.window.len
+    }
+}
+
+/// Format name of a [`NeuralManifest`].
+pub const NEURAL_FORMAT: &str = "baselines-neural";
+/// Current [`NeuralManifest`] version.
+pub const NEURAL_VERSION: u32 = 1;
+/// Largest weights file [`Cnn::decode`] and [`Lstm::decode`] accept, bytes.
+pub const MAX_NEURAL_WEIGHTS_BYTES: u64 = 1 << 30;
+
+/// The JSON manifest of a saved CNN or LSTM.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NeuralManifest {
+    /// Always [`NEURAL_FORMAT`].
+    pub format: String,
+    /// [`NEURAL_VERSION`] when written.
+    pub version: u32,
+    /// `CNN` or `LSTM`.
+    pub network: String,
+    /// The configuration the network was built and trained with.
+    pub config: NeuralConfig,
+    /// Training channels, in order.
+    pub channels: Vec<String>,
+    /// Per-channel normaliser fitted on the labelled training flights.
+    pub normaliser: Normaliser,
+    /// Alarm threshold of the batch scores, chosen on validation.
+    pub threshold: f64,
+    /// Alarm threshold of the streaming scores, chosen on validation.
+    pub stream_threshold: f64,
+    /// What training did.
+    pub report: nn_toolkit::TrainReport,
+    /// Size of the weights in bytes.
+    pub weights_bytes: u64,
+    /// Lower-case hex SHA-256 of the weights.
+    pub weights_sha256: String,
+}
+
+/// A saved CNN or LSTM: the manifest text and the safetensors bytes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NeuralFiles {
+    /// Text of the JSON manifest.
+    pub manifest: String,
+    /// Safetensors bytes of the weights.
+    pub weights: Vec<u8>,
+}
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+impl<N: PerStepNet> NeuralDetector<N> {
+    /// Encodes the fitted detector (module docs).
+    ///
+    /// # Errors
+    /// [`BaselineError::State`] if the weights or the manifest cannot be encoded.
+    pub fn encode(&self) -> Result<NeuralFiles> {
+        let weights = {
+            let data = self
+                ._varmap
+                .data()
+                .lock()
+                .map_err(|_| crate::state::state_err("variable map lock poisoned".into()))?;
+            let tensors: Vec<(String, Tensor)> = data.iter().map(|(k, v)| (k.clone(), v.as_tensor().clone())).collect();
+            safetensors::tensor::serialize(tensors, None)
+                .map_err(|e| crate::state::state_err(format!("cannot encode the weights: {e}")))?
+        };
+        let manifest = NeuralManifest {
+            format: NEURAL_FORMAT.into(),
+            version: NEURAL_VERSION,
+            network: self.name.into(),
+            config: self.config.clone(),
+            channels: self.channels.clone(),
+            normaliser: self.norm.clone(),
+            threshold: self.threshold,
+            stream_threshold: self.stream_threshold,
+            report: self.report.clone(),
+            weights_bytes: weights.len() as u64,
+            weights_sha256: sha256_hex(&weights),
+        };
+        let manifest = serde_json::to_string_pretty(&manifest)
+            .map_err(|e| crate::state::state_err(format!("cannot serialise the manifest: {e}")))?;
+        Ok(NeuralFiles { manifest, weights })
+    }
+}
+
+/// Decodes a saved network named `name`, built by `build` from the manifest's configuration.
+fn decode_neural<N: PerStepNet>(
+    name: &'static str,
+    manifest: &str,
+    weights: &[u8],
+    build: impl FnOnce(usize, &NeuralConfig, VarBuilder) -> candle_core::Result<N>,
+) -> Result<NeuralDetector<N>> {
+    use crate::state::{check_channels, check_finite, state_err};
+    let m: NeuralManifest = serde_json::from_str(manifest)
+        .map_err(|e| state_err(format!("malformed manifest at line {}, column {}: {e}", e.line(), e.column())))?;
+    if m.format != NEURAL_FORMAT || m.version != NEURAL_VERSION {
+        return Err(state_err(format!(
+            "format `{}` version {}, this build reads `{NEURAL_FORMAT}` version {NEURAL_VERSION}",
+            m.format, m.version
+        )));
+    }
+    if m.network != name {
+        return Err(state_err(format!("network: `{}`, expected `{name}`", m.network)));
+    }
+    m.config.check()?;
+    check_channels(&m.channels)?;
+    m.normaliser.check()?;
+    if m.normaliser.channels != m.channels {
+        return Err(state_err("normaliser.channels: differ from channels".into()));
+    }
+    check_finite("threshold, stream_threshold", &[m.threshold, m.stream_threshold])?;
+    if m.weights_bytes > MAX_NEURAL_WEIGHTS_BYTES || weights.len() as u64 != m.weights_bytes {
+        return Err(state_err(format!(
+            "weights: {} bytes, the manifest says {} (truncated or extended)",
+            weights.len(),
+            m.weights_bytes
+        )));
+    }
+    if sha256_hex(weights) != m.weights_sha256 {
+        return Err(state_err("weights: corrupted, SHA-256 differs from the manifest".into()));
+    }
+    let tensors = candle_core::safetensors::load_buffer(weights, &Device::Cpu)
+        .map_err(|e| state_err(format!("weights: not a safetensors file: {e}")))?;
+    let mut varmap = VarMap::new();
+    let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+    let net = build(m.normaliser.dim(), &m.config, vb).map_err(candle_err("building the network"))?;
+    {
+        let data = varmap.data().lock().map_err(|_| state_err("variable map lock poisoned".into()))?;
+        let mut expected: Vec<&String> = data.keys().collect();
+        expected.sort();
+        let mut found: Vec<&String> = tensors.keys().collect();
+        found.sort();
+        if expected != found {
+            return Err(state_err(format!("weights: tensors {found:?} do not match the network's {expected:?}")));
+        }
+    }
+    for (k, t) in &tensors {
+        varmap.set_one(k, t).map_err(|e| state_err(format!("weights: {e}")))?;
+    }
+    Ok(NeuralDetector {
+        name,
+        window: m.config.window,
+        score_stride: m.config.score_stride,
+        config: m.config,
+        channels: m.channels,
+        norm: m.normaliser,
+        net,
+        _varmap: varmap,
+        threshold: m.threshold,
+        stream_threshold: m.stream_threshold,
+        report: m.report,
+    })
+}
+
+impl Cnn {
+    /// Decodes the files of [`NeuralDetector::encode`] of a CNN.
+    ///
+    /// # Errors
+    /// [`BaselineError::State`] naming what is malformed, inconsistent, truncated or corrupted.
+    pub fn decode(manifest: &str, weights: &[u8]) -> Result<Self> {
+        decode_neural("CNN", manifest, weights, |m, c, vb| CnnNet::new(m, c.hidden, c.kernel, vb))
+    }
+}
+
+impl Lstm {
+    /// Decodes the files of [`NeuralDetector::encode`] of an LSTM.
+    ///
+    /// # Errors
+    /// As [`Cnn::decode`].
+    pub fn decode(manifest: &str, weights: &[u8]) -> Result<Self> {
+        decode_neural("LSTM", manifest, weights, |m, c, vb| LstmNet::new(m, c.hidden, vb))
     }
 }

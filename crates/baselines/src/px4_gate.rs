@@ -61,13 +61,29 @@ impl Default for Px4GateConfig {
 }
 
 /// A fitted PX4-style gate.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Px4Gate {
     channels: Vec<String>,
     gps_idx: Vec<usize>,
     gamma: f64,
     reset_timeout_s: f64,
     tuning: Tuning,
+}
+
+impl crate::JsonState for Px4Gate {
+    fn check_state(&self) -> Result<()> {
+        use crate::state::{check_channels, check_finite, state_err};
+        check_channels(&self.channels)?;
+        check_finite("gamma, reset_timeout_s", &[self.gamma, self.reset_timeout_s])?;
+        if self.gps_idx.is_empty() {
+            return Err(state_err("gps_idx: empty".into()));
+        }
+        if let Some(i) = self.gps_idx.iter().position(|&k| k >= self.channels.len()) {
+            return Err(state_err(format!("gps_idx[{i}]: {} is not a channel index", self.gps_idx[i])));
+        }
+        Ok(())
+    }
 }
 
 impl Px4Gate {

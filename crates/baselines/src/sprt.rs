@@ -68,7 +68,8 @@ pub fn wald_thresholds(alpha: f64, beta: f64) -> (f64, f64) {
 }
 
 /// A fitted SPRT detector.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Sprt {
     channels: Vec<String>,
     delta: f64,
@@ -77,6 +78,15 @@ pub struct Sprt {
     upper: f64,
     lower: f64,
     tuning: Tuning,
+}
+
+impl crate::JsonState for Sprt {
+    fn check_state(&self) -> Result<()> {
+        crate::state::check_channels(&self.channels)?;
+        crate::state::check_finite("delta, alpha, beta, upper, lower", &[
+            self.delta, self.alpha, self.beta, self.upper, self.lower,
+        ])
+    }
 }
 
 impl Sprt {

@@ -71,7 +71,8 @@ impl Default for SvmConfig {
 }
 
 /// A fitted RBF SVM over windowed residue features.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Svm {
     channels: Vec<String>,
     window: usize,
@@ -84,6 +85,25 @@ pub struct Svm {
     gamma: f64,
     c: f64,
     threshold: f64,
+}
+
+impl crate::JsonState for Svm {
+    fn check_state(&self) -> Result<()> {
+        use crate::state::{check_channels, check_finite, check_len, state_err};
+        check_channels(&self.channels)?;
+        if self.window == 0 {
+            return Err(state_err("window: must be at least 1".into()));
+        }
+        let d = n_features(self.channels.len());
+        check_len("feat_mean", self.feat_mean.len(), d)?;
+        check_len("feat_std", self.feat_std.len(), d)?;
+        check_len("support", self.support.len(), self.coef.len() * d)?;
+        for (field, v) in [("feat_mean", &self.feat_mean), ("feat_std", &self.feat_std), ("support", &self.support)] {
+            check_finite(field, v)?;
+        }
+        check_finite("coef", &self.coef)?;
+        check_finite("bias, gamma, c, threshold", &[self.bias, self.gamma, self.c, self.threshold])
+    }
 }
 
 impl Svm {

@@ -16,9 +16,11 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use ekf_residue::{Detector, Fit, LabelledResidues};
+use eval::cell::Cell;
+use eval::methods::Method;
 use eval::metrics::{confusion, roc_auc};
-use eval::reproduce::{MatrixConfig, Options, load_cell, parse_cell};
-use eval::runner::{Method, fit};
+use eval::reproduce::{MatrixConfig, Options, load_cell};
+use eval::runner::fit;
 use quadformer_model::TrainReport;
 
 fn main() -> Result<()> {
@@ -31,7 +33,7 @@ fn main() -> Result<()> {
     let (Some(method), Some(cell)) = (args.next(), args.next()) else {
         bail!("usage: fit_cell <method> <cell> [--seed N] [--config FILE.toml] [--out DIR]");
     };
-    let (method, cell) = (Method::parse(&method)?, parse_cell(&cell)?);
+    let (method, cell) = (Method::parse(&method)?, Cell::parse(&cell)?);
     let (mut seed, mut config, mut out) = (0u64, MatrixConfig::default(), PathBuf::from("results"));
     while let Some(flag) = args.next() {
         let value = args.next().with_context(|| format!("{flag} needs a value"))?;

@@ -43,13 +43,15 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use uav_dynamics::sensors::{Flight, GpsSample};
 
+use crate::cell::{AttackModel, Cell, NoiseModel, UavModel};
 use crate::dataset::{DatasetConfig, PlannedFlight, ResidueProtocol, Split, SplitSteps, load_or_build, plan_split};
 use crate::io::{AttackRecord, FlightDir, TIME_MATCH_TOL_S, write_text_atomic};
+use crate::methods::Method;
 use crate::metrics::{MeanStd, detection_delays, false_alarms, quantile};
 use crate::plot::{ErrorSeries, error_time_plot};
 use crate::reproduce::{Options, ReproduceError, Result};
-use crate::runner::{Method, fit, read_json_cache, write_json_cache};
-use crate::table::{NoiseModel, UavModel, to_csv};
+use crate::runner::{fit, read_json_cache, write_json_cache};
+use crate::table::to_csv;
 
 /// Bumped when the unit's computation changes, so cached units are recomputed.
 const UNIT_VERSION: u32 = 2;
@@ -238,11 +240,7 @@ pub struct LoopUnit {
 
 impl LoopUnit {
     fn slug(self) -> String {
-        let m = match self.model {
-            UavModel::I => "m1",
-            UavModel::II => "m2",
-        };
-        format!("{m}-{}-s{}", self.noise.name(), self.seed)
+        format!("{}-{}-s{}", self.model.slug(), self.noise.name(), self.seed)
     }
 }
 
@@ -269,7 +267,7 @@ struct UnitRecord {
 /// attack fits, and a seed of its own per family.
 #[must_use]
 pub fn family_dataset(unit: LoopUnit, family: Family, opts: &Options) -> DatasetConfig {
-    let cell = crate::table::Cell { model: unit.model, noise: unit.noise, attack: crate::table::AttackModel::I };
+    let cell = Cell { model: unit.model, noise: unit.noise, attack: AttackModel::I };
     let base = crate::reproduce::dataset_config(cell, unit.seed, &opts.config, opts.quick);
     let s = base.steps;
     #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]

@@ -310,14 +310,11 @@ impl DatasetConfig {
         Self { steps: SplitSteps::QUICK, flight_duration_s: 60.0, ..Self::paper(model, noise, attack) }
     }
 
-    /// Stable cell name, e.g. `model1-laplace-sparse`.
+    /// Stable cell name in the one naming scheme of [`crate::cell::Cell::slug`], e.g.
+    /// `m1-laplace-a1` ([`crate::cell::Cell::name_of_parts`]).
     #[must_use]
     pub fn cell_name(&self) -> String {
-        let model = match self.filter.model {
-            ModelKind::ModelI => "model1",
-            ModelKind::ModelII => "model2",
-        };
-        format!("{model}-{}-{}", self.sim.noise.shape.name(), self.attack.kind.name())
+        crate::cell::Cell::name_of_parts(self.filter.model, self.sim.noise.shape, self.attack.kind)
     }
 
     /// Residue steps per second of flight: one per GPS fix (Model I) or VO sample (Model II).

@@ -5,10 +5,13 @@
 //! interface. It may use every crate below it.
 #![warn(missing_docs)]
 
+pub mod cell;
 pub mod cli;
 pub mod closed_loop;
 pub mod dataset;
 pub mod io;
+pub mod methods;
+pub mod model_dir;
 /// The detection metrics (`detection-metrics`), under the name the experiment code uses.
 pub use detection_metrics as metrics;
 pub mod plot;

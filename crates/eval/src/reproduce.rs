@@ -12,22 +12,21 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use attack_inject::{AmplitudeConfig, AttackKind};
-use ekf_residue::residues::{MODEL2_VO_CHANNELS, ModelKind};
+use attack_inject::AmplitudeConfig;
+use ekf_residue::residues::MODEL2_VO_CHANNELS;
 use ekf_residue::{Detector, LabelledResidues};
 use quadformer_model::Prior;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use uav_dynamics::noise::NoiseShape;
 
+use crate::cell::{AttackModel, Cell, NoiseModel, UavModel};
 use crate::dataset::{Dataset, DatasetConfig, Split, SplitSteps, build_split, load_or_build};
 use crate::io::write_text_atomic;
+use crate::methods::{Method, MethodConfigs};
 use crate::metrics::{MeanStd, RocCurve};
 use crate::plot::{StatisticTrace, SweepSeries, f1_amplitude_plot, roc_plot, statistic_plot};
-use crate::runner::{
-    Method, MethodConfigs, ModeMetrics, RunError, RunRecord, Splits, evaluate_split, fit, run_one, score_split,
-};
-use crate::table::{AttackModel, Cell, NoiseModel, RunResult, UavModel, write_outputs};
+use crate::runner::{ModeMetrics, RunError, RunRecord, Splits, evaluate_split, fit, run_one, score_split};
+use crate::table::{ResultRow, write_outputs};
 
 /// Errors of `reproduce-tables`, each naming the stage and cell.
 #[derive(Debug, thiserror::Error)]
@@ -175,53 +174,9 @@ pub enum Stages {
     ClosedLoop,
 }
 
-/// The eight cells of Tables I and II, in table order.
-pub fn table_cells() -> Vec<Cell> {
-    let mut cells = Vec::new();
-    for model in [UavModel::I, UavModel::II] {
-        for (noise, attack) in crate::table::TABLE_COLUMNS {
-            cells.push(Cell { model, noise, attack });
-        }
-    }
-    cells
-}
-
-/// Parses a cell slug such as `m1-exponential-a2` ([`Cell::slug`]).
-///
-/// # Errors
-/// [`ReproduceError::Config`] listing the valid form.
-pub fn parse_cell(s: &str) -> Result<Cell> {
-    let all_noise = [NoiseModel::Gaussian, NoiseModel::Exponential, NoiseModel::Laplace];
-    for model in [UavModel::I, UavModel::II] {
-        for noise in all_noise {
-            for attack in [AttackModel::I, AttackModel::II] {
-                let c = Cell { model, noise, attack };
-                if c.slug() == s.trim() {
-                    return Ok(c);
-                }
-            }
-        }
-    }
-    Err(ReproduceError::Config(format!(
-        "unknown cell `{s}`: expected m1|m2 - gaussian|exponential|laplace - a1|a2, e.g. m1-exponential-a2"
-    )))
-}
-
 /// The dataset configuration of `cell` at `seed`.
 pub fn dataset_config(cell: Cell, seed: u64, cfg: &MatrixConfig, quick: bool) -> DatasetConfig {
-    let model = match cell.model {
-        UavModel::I => ModelKind::ModelI,
-        UavModel::II => ModelKind::ModelII,
-    };
-    let noise = match cell.noise {
-        NoiseModel::Gaussian => NoiseShape::Gaussian,
-        NoiseModel::Exponential => NoiseShape::Exponential,
-        NoiseModel::Laplace => NoiseShape::Laplace,
-    };
-    let attack = match cell.attack {
-        AttackModel::I => AttackKind::Sparse,
-        AttackModel::II => AttackKind::Persistent,
-    };
+    let (model, noise, attack) = (cell.model.kind(), cell.noise.shape(), cell.attack.kind());
     let base =
         if quick { DatasetConfig::quick(model, noise, attack) } else { DatasetConfig::paper(model, noise, attack) };
     DatasetConfig { steps: cfg.steps, labelled_fraction: cfg.labelled_fraction, seed, ..base }
@@ -279,7 +234,7 @@ pub fn load_cell(cell: Cell, seed: u64, opts: &Options) -> Result<Dataset> {
 
 /// Whether `method` can run on `cell` with this configuration.
 fn applicable(method: Method, cell: Cell, cfg: &MatrixConfig) -> bool {
-    !(method == Method::Px4Gate && cell.model == UavModel::II && cfg.model2_channels == Model2Channels::Vo)
+    !(method.needs_gps() && cell.model == UavModel::II && cfg.model2_channels == Model2Channels::Vo)
 }
 
 /// Fitted detectors kept from the matrix for the studies, by method.
@@ -335,8 +290,13 @@ pub fn run_matrix_keeping(opts: &Options, keep: Option<(Cell, u64)>) -> Result<(
         .collect::<Result<_>>()?;
     bar.finish();
     let mut records: Vec<RunRecord> = records.into_iter().flatten().collect();
+    // By cell, method name and seed (the order of the ROC curves in each figure).
     records.sort_by(|a, b| {
-        (a.result.cell(), &a.result.method, a.result.seed).cmp(&(b.result.cell(), &b.result.method, b.result.seed))
+        (a.result.cell(), a.result.method.name(), a.result.seed).cmp(&(
+            b.result.cell(),
+            b.result.method.name(),
+            b.result.seed,
+        ))
     });
     let kept = kept.into_inner().unwrap_or_default();
     Ok((records, kept))
@@ -357,7 +317,7 @@ pub fn write_roc_plots(out: &Path, records: &[RunRecord]) -> Result<Vec<PathBuf>
             .filter_map(|r| {
                 RocCurve::from_fpr_tpr(&r.roc, r.result.roc_auc, r.result.pr_auc)
                     .ok()
-                    .map(|c| (r.result.method.clone(), c))
+                    .map(|c| (r.result.method.name().to_owned(), c))
             })
             .collect();
         if curves.is_empty() {
@@ -528,7 +488,7 @@ pub fn label_fraction_ablation(
     opts: &Options,
     data: &Dataset,
     with_matrix_fraction: bool,
-) -> Result<Vec<(f64, RunResult)>> {
+) -> Result<Vec<(f64, ResultRow)>> {
     let cell = STUDY_CELL;
     let cache = opts.out.join("runs");
     let splits = opts
@@ -559,7 +519,7 @@ const ARCHITECTURES: [(&str, bool, bool); 3] = [("full", true, true), ("no TPC",
 ///
 /// # Errors
 /// Any stage's error.
-pub fn architecture_ablation(opts: &Options, data: &Dataset, with_full: bool) -> Result<Vec<(String, RunResult)>> {
+pub fn architecture_ablation(opts: &Options, data: &Dataset, with_full: bool) -> Result<Vec<(String, ResultRow)>> {
     let cell = STUDY_CELL;
     let splits = CellSplits::from_dataset(cell, data, &opts.config, opts.config.labelled_fraction)?;
     let cache = opts.out.join("runs");
@@ -619,22 +579,23 @@ pub fn reproduce(opts: &Options) -> Result<Vec<PathBuf>> {
     let study_records: Vec<&RunRecord> =
         records.iter().filter(|r| r.result.cell() == STUDY_CELL && r.result.seed == 0).collect();
     if matrix_has_study_unit {
-        let learning = |r: &&&RunRecord| opts.methods.iter().any(|m| m.is_learning() && m.name() == r.result.method);
+        let learning = |r: &&&RunRecord| r.result.method.is_learning() && opts.methods.contains(&r.result.method);
         if opts.config.ablation_fractions.contains(&opts.config.labelled_fraction) {
             fractions.extend(
                 study_records.iter().filter(learning).map(|r| (opts.config.labelled_fraction, r.result.clone())),
             );
         }
-        if let Some(qf) = study_records.iter().find(|r| r.result.method == Method::QuadFormer.name()) {
+        if let Some(qf) = study_records.iter().find(|r| r.result.method == Method::QuadFormer) {
             arch.push((ARCHITECTURES[0].0.to_owned(), qf.result.clone()));
         }
     }
-    let method_rank = |name: &str| opts.methods.iter().position(|m| m.name() == name);
-    fractions.sort_by(|a, b| a.0.total_cmp(&b.0).then(method_rank(&a.1.method).cmp(&method_rank(&b.1.method))));
+    let method_rank = |m: Method| opts.methods.iter().position(|o| *o == m);
+    fractions.sort_by(|a, b| a.0.total_cmp(&b.0).then(method_rank(a.1.method).cmp(&method_rank(b.1.method))));
     arch.sort_by_key(|(name, _)| ARCHITECTURES.iter().position(|(n, _, _)| n == name));
 
-    let results: Vec<RunResult> = records.iter().map(|r| r.result.clone()).collect();
-    let mut files = write_outputs(&opts.out, &results)?;
+    let results: Vec<ResultRow> = records.iter().map(|r| r.result.clone()).collect();
+    let timings: Vec<_> = records.iter().map(RunRecord::timing).collect();
+    let mut files = write_outputs(&opts.out, &results, &timings)?;
     files.extend(write_roc_plots(&opts.out, &records)?);
     let mut report = String::new();
     let (cusum_files, cusum_note) = cusum_post_attack(opts)?;
@@ -642,7 +603,7 @@ pub fn reproduce(opts: &Options) -> Result<Vec<PathBuf>> {
     let (sweep, sweep_files) = amplitude_sweep(opts, &study_data, kept)?;
     files.extend(sweep_files);
     let modes: &[ModeMetrics] =
-        study_records.iter().find(|r| r.result.method == Method::QuadFormer.name()).map_or(&[], |r| &r.modes);
+        study_records.iter().find(|r| r.result.method == Method::QuadFormer).map_or(&[], |r| &r.modes);
     let closed = if opts.stages == Stages::All {
         let (rows, loop_files) = crate::closed_loop::closed_loop(opts)?;
         files.extend(loop_files);
@@ -670,8 +631,8 @@ fn write_report(
     cusum_note: &str,
     sweep: &[SweepPoint],
     modes: &[ModeMetrics],
-    fractions: &[(f64, RunResult)],
-    arch: &[(String, RunResult)],
+    fractions: &[(f64, ResultRow)],
+    arch: &[(String, ResultRow)],
     wall_s: f64,
 ) {
     let _ = writeln!(s, "# QUADFormer-rs: reproduced results\n");
@@ -820,13 +781,5 @@ mod tests {
         let e = MatrixConfig::from_toml_file(&path, &MatrixConfig::default()).unwrap_err().to_string();
         assert!(e.contains("m.toml") && e.contains("epoch"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    #[test]
-    fn cells_parse_from_their_slugs() {
-        for c in table_cells() {
-            assert_eq!(parse_cell(&c.slug()).unwrap(), c);
-        }
-        assert!(parse_cell("m3-laplace-a1").is_err());
     }
 }

@@ -10,15 +10,16 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use baselines::{BhtConfig, Chi2Config, CnnConfig, CusumConfig, LstmConfig, Px4GateConfig, SprtConfig, SvmConfig};
 use ekf_residue::{Detector, Fit, LabelledResidues};
 use quadformer_model::{ModeResult, QuadFormerConfig};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
+use crate::cell::Cell;
 use crate::io::write_text_atomic;
+use crate::methods::{Method, MethodConfigs};
 use crate::metrics::{Evaluation, FlightOutcome, evaluate};
-use crate::table::{Cell, RunResult};
+use crate::table::{ResultRow, TimingRow};
 
 /// Largest number of ROC points kept per run for plotting.
 const ROC_POINTS_KEPT: usize = 200;
@@ -59,9 +60,6 @@ pub enum RunError {
         /// Index of the flight in the test split.
         flight_idx: usize,
     },
-    /// An unknown method name was given.
-    #[error("unknown method `{0}` (known: quadformer, cusum, sprt, bht, svm, cnn, lstm, chi2, px4-gate)")]
-    UnknownMethod(String),
     /// Reading or writing the run cache failed.
     #[error("run cache {path}: {msg}")]
     Cache {
@@ -75,197 +73,12 @@ pub enum RunError {
 /// Result alias of the runner.
 pub type Result<T, E = RunError> = std::result::Result<T, E>;
 
-/// A detection method of the comparison: the paper's seven rows plus two extra rows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Method {
-    /// QUADFormer (paper sec:attack_detector).
-    QuadFormer,
-    /// CUSUM on the NIS (Murguia & Ruths).
-    Cusum,
-    /// Wald's sequential probability ratio test.
-    Sprt,
-    /// Binary hypothesis test (ellipsoid).
-    Bht,
-    /// RBF support vector machine on residue windows.
-    Svm,
-    /// 1-D convolutional network on residue windows.
-    Cnn,
-    /// LSTM on residue windows.
-    Lstm,
-    /// Chi-squared test on the NIS (extra row).
-    Chi2,
-    /// PX4 EKF2-style GPS innovation gate (extra row).
-    Px4Gate,
-}
-
-impl Method {
-    /// Every method, in table order.
-    pub const ALL: [Method; 9] = [
-        Method::Cusum,
-        Method::Sprt,
-        Method::Bht,
-        Method::Svm,
-        Method::Cnn,
-        Method::Lstm,
-        Method::QuadFormer,
-        Method::Chi2,
-        Method::Px4Gate,
-    ];
-
-    /// The name used in tables (as the fitted detector's `Detector::name` returns it).
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::QuadFormer => "QUADFormer",
-            Method::Cusum => "CUSUM",
-            Method::Sprt => "SPRT",
-            Method::Bht => "BHT",
-            Method::Svm => "SVM",
-            Method::Cnn => "CNN",
-            Method::Lstm => "LSTM",
-            Method::Chi2 => "Chi2",
-            Method::Px4Gate => "PX4 gate",
-        }
-    }
-
-    /// The command-line and file-name form, e.g. `px4-gate`.
-    pub fn slug(self) -> &'static str {
-        match self {
-            Method::QuadFormer => "quadformer",
-            Method::Cusum => "cusum",
-            Method::Sprt => "sprt",
-            Method::Bht => "bht",
-            Method::Svm => "svm",
-            Method::Cnn => "cnn",
-            Method::Lstm => "lstm",
-            Method::Chi2 => "chi2",
-            Method::Px4Gate => "px4-gate",
-        }
-    }
-
-    /// Parses a [`Method::slug`] or [`Method::name`] (case-insensitive).
-    ///
-    /// # Errors
-    /// [`RunError::UnknownMethod`].
-    pub fn parse(s: &str) -> Result<Self> {
-        let s = s.trim().to_ascii_lowercase();
-        Method::ALL
-            .into_iter()
-            .find(|m| m.slug() == s || m.name().to_ascii_lowercase() == s)
-            .ok_or(RunError::UnknownMethod(s))
-    }
-
-    /// Whether the method learns from labelled windows (and so depends on the seed beyond the data).
-    pub fn is_learning(self) -> bool {
-        matches!(self, Method::QuadFormer | Method::Svm | Method::Cnn | Method::Lstm)
-    }
-}
-
-/// The hyper-parameters of every method. Defaults are each method's own documented defaults.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct MethodConfigs {
-    /// QUADFormer.
-    pub quadformer: QuadFormerConfig,
-    /// CUSUM.
-    pub cusum: CusumConfig,
-    /// SPRT.
-    pub sprt: SprtConfig,
-    /// BHT.
-    pub bht: BhtConfig,
-    /// SVM.
-    pub svm: SvmConfig,
-    /// CNN.
-    pub cnn: CnnConfig,
-    /// LSTM.
-    pub lstm: LstmConfig,
-    /// Chi-squared.
-    pub chi2: Chi2Config,
-    /// PX4-style gate.
-    pub px4_gate: Px4GateConfig,
-}
-
-impl MethodConfigs {
-    /// The configuration of the full run: every method's defaults, with per-epoch progress bars
-    /// off (the runner shows its own). The defaults train every learning method on every
-    /// window of its training data in every epoch until validation stops improving
-    /// (docs/decisions/004-training-budget.md).
-    pub fn full() -> Self {
-        let mut c = Self::default();
-        for t in [&mut c.quadformer.train, &mut c.cnn.0.train, &mut c.lstm.0.train] {
-            t.progress = false;
-        }
-        c
-    }
-
-    /// The configuration of `--quick`: small networks and few epochs, so the whole pipeline runs
-    /// in about a minute. Its numbers are a smoke test, not results.
-    pub fn quick() -> Self {
-        let mut c = Self::full();
-        c.quadformer = QuadFormerConfig::tiny(50);
-        c.quadformer.train.epochs = 2;
-        c.quadformer.train.max_windows_per_epoch = Some(256);
-        c.quadformer.train.labelled_share = Some(0.5);
-        c.quadformer.train.mirror = true;
-        for nn in [&mut c.cnn.0, &mut c.lstm.0] {
-            nn.window = c.quadformer.window;
-            nn.score_stride = 25;
-            nn.hidden = 16;
-            nn.train.epochs = 2;
-            nn.train.max_windows_per_epoch = Some(256);
-            nn.train.progress = false;
-        }
-        c.svm.max_train = 400;
-        c.svm.c_grid = vec![1.0];
-        c.svm.gamma_grid = vec![1.0];
-        c
-    }
-
-    /// A copy whose random parts (weights, shuffling, subsampling) are seeded by `seed`.
-    pub fn seeded(&self, seed: u64) -> Self {
-        let mut c = self.clone();
-        c.quadformer.train.seed = seed;
-        c.cnn.0.seed = seed;
-        c.cnn.0.train.seed = seed;
-        c.lstm.0.seed = seed;
-        c.lstm.0.train.seed = seed;
-        c.svm.seed = seed;
-        c
-    }
-
-    /// Canonical JSON of one method's configuration (hashed into the run cache key).
-    fn method_json(&self, method: Method) -> String {
-        let v = match method {
-            Method::QuadFormer => serde_json::to_string(&self.quadformer),
-            Method::Cusum => serde_json::to_string(&self.cusum),
-            Method::Sprt => serde_json::to_string(&self.sprt),
-            Method::Bht => serde_json::to_string(&self.bht),
-            Method::Svm => serde_json::to_string(&self.svm),
-            Method::Cnn => serde_json::to_string(&self.cnn),
-            Method::Lstm => serde_json::to_string(&self.lstm),
-            Method::Chi2 => serde_json::to_string(&self.chi2),
-            Method::Px4Gate => serde_json::to_string(&self.px4_gate),
-        };
-        v.unwrap_or_default()
-    }
-}
-
 /// A fitted detector and how long fitting took.
 pub struct Fitted {
     /// The detector, thresholds chosen on validation.
     pub detector: Box<dyn Detector>,
     /// Wall-clock fit time in seconds.
     pub train_s: f64,
-}
-
-fn fit_with<F>(method: Method, cfg: &F, train: &LabelledResidues, valid: &LabelledResidues) -> Result<Box<dyn Detector>>
-where
-    F: Fit,
-    F::Detector: 'static,
-{
-    cfg.fit(train, valid)
-        .map(|d| Box::new(d) as Box<dyn Detector>)
-        .map_err(|e| RunError::Fit { method: method.name(), msg: e.to_string() })
 }
 
 /// Fits `method` with `cfgs` (already [`MethodConfigs::seeded`]) on `train`, choosing its
@@ -275,17 +88,7 @@ where
 /// [`RunError::Fit`] with the method's own error message.
 pub fn fit(method: Method, cfgs: &MethodConfigs, train: &LabelledResidues, valid: &LabelledResidues) -> Result<Fitted> {
     let start = Instant::now();
-    let detector = match method {
-        Method::QuadFormer => fit_with(method, &cfgs.quadformer, train, valid)?,
-        Method::Cusum => fit_with(method, &cfgs.cusum, train, valid)?,
-        Method::Sprt => fit_with(method, &cfgs.sprt, train, valid)?,
-        Method::Bht => fit_with(method, &cfgs.bht, train, valid)?,
-        Method::Svm => fit_with(method, &cfgs.svm, train, valid)?,
-        Method::Cnn => fit_with(method, &cfgs.cnn, train, valid)?,
-        Method::Lstm => fit_with(method, &cfgs.lstm, train, valid)?,
-        Method::Chi2 => fit_with(method, &cfgs.chi2, train, valid)?,
-        Method::Px4Gate => fit_with(method, &cfgs.px4_gate, train, valid)?,
-    };
+    let detector = method.fit(cfgs, train, valid).map_err(|msg| RunError::Fit { method: method.name(), msg })?;
     Ok(Fitted { detector, train_s: start.elapsed().as_secs_f64() })
 }
 
@@ -324,12 +127,24 @@ pub struct RunRecord {
     /// Hash of everything that determined the run (see [`run_key`]).
     pub key: String,
     /// Every metric.
-    pub result: RunResult,
+    pub result: ResultRow,
+    /// Wall-clock training time in seconds (not written to `results.csv`/`results.json`).
+    pub train_s: f64,
+    /// Wall-clock scoring time of the test split in seconds (idem).
+    pub score_s: f64,
     /// ROC curve as `(false-positive rate, true-positive rate)` points, at most 200.
     pub roc: Vec<(f64, f64)>,
     /// QUADFormer only: every score mode on the same test split (the score-mode ablation).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub modes: Vec<ModeMetrics>,
+}
+
+impl RunRecord {
+    /// The wall-clock times of the run, as a row of `timings.csv`.
+    #[must_use]
+    pub fn timing(&self) -> TimingRow {
+        TimingRow::of(&self.result, self.train_s, self.score_s)
+    }
 }
 
 /// One QUADFormer score mode on the test split, at the mode's own validation threshold.
@@ -362,11 +177,11 @@ pub fn run_record(
     train_s: f64,
 ) -> Result<RunRecord> {
     let e = evaluate_split(test, &scored.scores, &scored.alarms, method.name(), cell)?;
-    let result = RunResult {
+    let result = ResultRow {
         model: cell.model,
         noise: cell.noise,
         attack: cell.attack,
-        method: method.name().to_owned(),
+        method,
         seed,
         precision: e.precision(),
         recall: e.recall(),
@@ -382,8 +197,6 @@ pub fn run_record(
         stream_precision: None,
         stream_recall: None,
         stream_f1: None,
-        train_s,
-        score_s: scored.score_s,
     };
     let points = e.roc.points();
     let stride = points.len().div_ceil(ROC_POINTS_KEPT).max(1);
@@ -393,7 +206,7 @@ pub fn run_record(
     {
         roc.push((last.fpr, last.tpr));
     }
-    Ok(RunRecord { key, result, roc, modes: Vec::new() })
+    Ok(RunRecord { key, result, train_s, score_s: scored.score_s, roc, modes: Vec::new() })
 }
 
 /// Evaluates per-flight scores and alarms (one vector per flight of `test`) against the labels
@@ -450,7 +263,7 @@ pub fn run_key(dataset_key: &str, method: Method, cfgs: &MethodConfigs) -> Strin
     h.update([0]);
     h.update(method.slug().as_bytes());
     h.update([0]);
-    h.update(cfgs.method_json(method).as_bytes());
+    h.update(method.config_json(cfgs).as_bytes());
     let digest = h.finalize();
     digest.iter().map(|b| format!("{b:02x}")).collect()
 }
@@ -467,7 +280,7 @@ pub fn cache_path(cache_dir: &Path, cell: Cell, method: Method, seed: u64, key: 
 /// cache miss (a corrupt or stale file is recomputed, never trusted).
 pub fn load_cached(path: &Path, key: &str) -> Option<RunRecord> {
     let rec: RunRecord = read_json_cache(path)?;
-    (rec.key == key && rec.result.check().is_ok()).then_some(rec)
+    (rec.key == key && rec.result.check().is_ok() && rec.timing().check().is_ok()).then_some(rec)
 }
 
 /// Writes a record atomically.
@@ -600,15 +413,6 @@ pub struct Splits<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn method_names_round_trip_and_match_the_tables() {
-        for m in Method::ALL {
-            assert_eq!(Method::parse(m.slug()).unwrap(), m);
-            assert!(crate::table::METHOD_ORDER.iter().any(|(name, _)| *name == m.name()), "{m:?}");
-        }
-        assert!(matches!(Method::parse("nope"), Err(RunError::UnknownMethod(_))));
-    }
 
     #[test]
     fn run_key_depends_on_seed_and_method() {

@@ -2,9 +2,10 @@
 //! tab:comprehensive_analysis2 for Model II) regenerated from runs, in the paper's layout, as
 //! Markdown and LaTeX; and the raw results as CSV and JSON, one row per (cell, method, seed).
 //!
-//! Layout: rows are methods grouped Traditional (CUSUM, SPRT, BHT) / Learning-based (SVM, CNN,
-//! LSTM) / Ours (QUADFormer), then every other method (chi-squared, the PX4-style gate, tuning
-//! variants) in a separate "Extra" group; columns are noise (exponential, Laplace) × attack
+//! Layout: rows are the methods of the registry ([`crate::methods`]) in its order, grouped
+//! Traditional (CUSUM, SPRT, BHT) / Learning-based (SVM, CNN, LSTM) / Ours (QUADFormer), then
+//! the methods that are no row of the paper (chi-squared, the PX4-style gate) in a separate
+//! "Extra" group; columns are noise (exponential, Laplace) × attack
 //! (I, II) × per-step precision, recall, F1 (eq:precision, eq:recall, eq:F1); each cell is
 //! `mean ± std` over seeds with the sample standard deviation (divisor `n − 1`). The paper's
 //! published numbers follow in a separate, labelled block, for comparison only.
@@ -15,12 +16,14 @@
 //! `results.json` (docs/decisions/061-results-files.md).
 
 use std::collections::BTreeMap;
-use std::fmt::{self, Write as _};
+use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::cell::{AttackModel, Cell, NoiseModel, TABLE_COLUMNS, UavModel};
 use crate::io::{IoError, write_text_atomic};
+use crate::methods::{Method, MethodGroup, by_name};
 use crate::metrics::{MeanStd, MetricsError};
 
 /// Version of the `results.json` layout; bump it when a field changes.
@@ -36,7 +39,7 @@ pub enum TableError {
         /// The cell.
         cell: Cell,
         /// The method.
-        method: String,
+        method: Method,
         /// The seed.
         seed: u64,
     },
@@ -46,7 +49,7 @@ pub enum TableError {
         /// The cell.
         cell: Cell,
         /// The method.
-        method: String,
+        method: Method,
         /// The seed.
         seed: u64,
         /// The field name.
@@ -84,164 +87,13 @@ pub enum TableError {
 pub type Result<T, E = TableError> = std::result::Result<T, E>;
 
 // ---------------------------------------------------------------------------------------------
-// Cells and methods.
+// Method order.
 
-/// The UAV model of a cell (paper eq:model1f / eq:model2f).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-pub enum UavModel {
-    /// Model I: 15 states, pose measurement.
-    #[serde(rename = "I")]
-    I,
-    /// Model II: 21 states, GPS and VO relative pose.
-    #[serde(rename = "II")]
-    II,
+/// Sort key of a method: its position in the registry's table order ([`Method::ALL`]), which
+/// keeps every group together.
+fn method_key(method: Method) -> usize {
+    method.rank()
 }
-
-/// The sensor-noise shape of a cell.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum NoiseModel {
-    /// Gaussian (not a column of the paper's tables; used by ablations).
-    Gaussian,
-    /// Centred exponential at the Gaussian's σ.
-    Exponential,
-    /// Laplace at the Gaussian's σ.
-    Laplace,
-}
-
-/// The attack model of a cell.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-pub enum AttackModel {
-    /// Attack I: sparse FDI bursts.
-    #[serde(rename = "I")]
-    I,
-    /// Attack II: persistent FDI (bias or slow ramp).
-    #[serde(rename = "II")]
-    II,
-}
-
-/// One cell of the experiment matrix.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-pub struct Cell {
-    /// UAV model.
-    pub model: UavModel,
-    /// Noise shape.
-    pub noise: NoiseModel,
-    /// Attack model.
-    pub attack: AttackModel,
-}
-
-impl Cell {
-    /// A short file-name-safe slug, e.g. `m1-exponential-a2`.
-    pub fn slug(&self) -> String {
-        let m = match self.model {
-            UavModel::I => "m1",
-            UavModel::II => "m2",
-        };
-        let a = match self.attack {
-            AttackModel::I => "a1",
-            AttackModel::II => "a2",
-        };
-        format!("{m}-{}-{a}", self.noise.name())
-    }
-}
-
-impl NoiseModel {
-    /// Lowercase name, as in cell slugs (`exponential`).
-    pub(crate) fn name(self) -> &'static str {
-        match self {
-            Self::Gaussian => "gaussian",
-            Self::Exponential => "exponential",
-            Self::Laplace => "laplace",
-        }
-    }
-}
-
-impl fmt::Display for Cell {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let m = match self.model {
-            UavModel::I => "I",
-            UavModel::II => "II",
-        };
-        let a = match self.attack {
-            AttackModel::I => "I",
-            AttackModel::II => "II",
-        };
-        write!(f, "Model {m}, {} noise, Attack {a}", self.noise.name())
-    }
-}
-
-/// The row group of a method in Tables I and II.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum MethodGroup {
-    /// Residue-based statistical tests of the paper: CUSUM, SPRT, BHT.
-    Traditional,
-    /// Learning-based baselines of the paper: SVM, CNN, LSTM.
-    LearningBased,
-    /// QUADFormer.
-    Ours,
-    /// Methods that are not rows of the paper (chi-squared, PX4-style gate, variants).
-    Extra,
-}
-
-impl MethodGroup {
-    fn label(self) -> &'static str {
-        match self {
-            Self::Traditional => "Traditional",
-            Self::LearningBased => "Learning-based",
-            Self::Ours => "Ours",
-            Self::Extra => "Extra (not in the paper)",
-        }
-    }
-
-    fn latex_label(self) -> &'static str {
-        match self {
-            Self::Traditional => "Traditional Method",
-            Self::LearningBased => "\\parbox{2cm}{\\centering Learning-based\\\\ Method}",
-            Self::Ours => "\\textbf{Ours}",
-            Self::Extra => "\\parbox{2cm}{\\centering Extra (not in\\\\ the paper)}",
-        }
-    }
-}
-
-/// Known method names (as `Detector::name` returns them) in table order with their group.
-/// Methods not listed are "Extra" and sort after these, by name.
-pub const METHOD_ORDER: [(&str, MethodGroup); 9] = [
-    ("CUSUM", MethodGroup::Traditional),
-    ("SPRT", MethodGroup::Traditional),
-    ("BHT", MethodGroup::Traditional),
-    ("SVM", MethodGroup::LearningBased),
-    ("CNN", MethodGroup::LearningBased),
-    ("LSTM", MethodGroup::LearningBased),
-    ("QUADFormer", MethodGroup::Ours),
-    ("Chi2", MethodGroup::Extra),
-    ("PX4 gate", MethodGroup::Extra),
-];
-
-/// Group and rank of a method; unknown names rank after every known one.
-fn method_key(method: &str) -> (MethodGroup, usize) {
-    METHOD_ORDER
-        .iter()
-        .position(|(name, _)| *name == method)
-        .map_or((MethodGroup::Extra, METHOD_ORDER.len()), |i| (METHOD_ORDER[i].1, i))
-}
-
-/// Group, rank within the table, name.
-type MethodSortKey<'a> = (MethodGroup, usize, &'a str);
-
-/// Sort key of a method: group, rank, then name.
-fn method_sort_key(method: &str) -> MethodSortKey<'_> {
-    let (g, r) = method_key(method);
-    (g, r, method)
-}
-
-/// The four columns of a table, in the paper's order.
-pub const TABLE_COLUMNS: [(NoiseModel, AttackModel); 4] = [
-    (NoiseModel::Exponential, AttackModel::I),
-    (NoiseModel::Exponential, AttackModel::II),
-    (NoiseModel::Laplace, AttackModel::I),
-    (NoiseModel::Laplace, AttackModel::II),
-];
 
 // ---------------------------------------------------------------------------------------------
 // The paper's numbers.
@@ -249,8 +101,8 @@ pub const TABLE_COLUMNS: [(NoiseModel, AttackModel); 4] = [
 /// One row of a published table: `values[c] = [P, R, F1]` for column `c` of [`TABLE_COLUMNS`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PaperRow {
-    /// Method name, as in [`METHOD_ORDER`].
-    pub method: &'static str,
+    /// The method.
+    pub method: Method,
     /// Precision, recall, F1 per column.
     pub values: [[f64; 3]; 4],
 }
@@ -259,31 +111,31 @@ pub struct PaperRow {
 /// tab:comprehensive_analysis1 of the paper's LaTeX source. Never used as results.
 pub const PAPER_TABLE_I: [PaperRow; 7] = [
     PaperRow {
-        method: "CUSUM",
+        method: Method::Cusum,
         values: [[0.69, 0.64, 0.66], [0.71, 0.59, 0.64], [0.70, 0.62, 0.66], [0.71, 0.58, 0.64]],
     },
     PaperRow {
-        method: "SPRT",
+        method: Method::Sprt,
         values: [[0.69, 0.67, 0.69], [0.68, 0.68, 0.67], [0.69, 0.67, 0.68], [0.68, 0.67, 0.67]],
     },
     PaperRow {
-        method: "BHT",
+        method: Method::Bht,
         values: [[0.62, 0.65, 0.64], [0.68, 0.60, 0.65], [0.66, 0.59, 0.62], [0.70, 0.60, 0.65]],
     },
     PaperRow {
-        method: "SVM",
+        method: Method::Svm,
         values: [[0.88, 0.82, 0.85], [0.75, 0.69, 0.72], [0.88, 0.82, 0.85], [0.75, 0.69, 0.72]],
     },
     PaperRow {
-        method: "CNN",
+        method: Method::Cnn,
         values: [[0.89, 0.81, 0.85], [0.90, 0.78, 0.84], [0.90, 0.84, 0.87], [0.90, 0.78, 0.84]],
     },
     PaperRow {
-        method: "LSTM",
+        method: Method::Lstm,
         values: [[0.88, 0.78, 0.83], [0.78, 0.86, 0.82], [0.86, 0.84, 0.85], [0.81, 0.85, 0.83]],
     },
     PaperRow {
-        method: "QUADFormer",
+        method: Method::QuadFormer,
         values: [[0.92, 0.93, 0.93], [0.89, 0.95, 0.92], [0.92, 0.94, 0.93], [0.89, 0.95, 0.92]],
     },
 ];
@@ -292,31 +144,31 @@ pub const PAPER_TABLE_I: [PaperRow; 7] = [
 /// tab:comprehensive_analysis2 of the paper's LaTeX source. Never used as results.
 pub const PAPER_TABLE_II: [PaperRow; 7] = [
     PaperRow {
-        method: "CUSUM",
+        method: Method::Cusum,
         values: [[0.75, 0.76, 0.76], [0.73, 0.70, 0.72], [0.73, 0.69, 0.71], [0.72, 0.69, 0.71]],
     },
     PaperRow {
-        method: "SPRT",
+        method: Method::Sprt,
         values: [[0.75, 0.77, 0.76], [0.74, 0.77, 0.74], [0.74, 0.73, 0.73], [0.73, 0.70, 0.71]],
     },
     PaperRow {
-        method: "BHT",
+        method: Method::Bht,
         values: [[0.70, 0.72, 0.72], [0.75, 0.71, 0.73], [0.75, 0.70, 0.72], [0.69, 0.72, 0.71]],
     },
     PaperRow {
-        method: "SVM",
+        method: Method::Svm,
         values: [[0.94, 0.76, 0.84], [0.94, 0.61, 0.74], [0.94, 0.75, 0.83], [0.93, 0.61, 0.74]],
     },
     PaperRow {
-        method: "CNN",
+        method: Method::Cnn,
         values: [[0.93, 0.73, 0.82], [0.94, 0.70, 0.80], [0.96, 0.67, 0.79], [0.85, 0.72, 0.78]],
     },
     PaperRow {
-        method: "LSTM",
+        method: Method::Lstm,
         values: [[0.89, 0.80, 0.84], [0.90, 0.75, 0.82], [0.81, 0.83, 0.82], [0.89, 0.74, 0.81]],
     },
     PaperRow {
-        method: "QUADFormer",
+        method: Method::QuadFormer,
         values: [[0.92, 0.97, 0.94], [0.89, 0.94, 0.91], [0.91, 0.96, 0.94], [0.89, 0.97, 0.93]],
     },
 ];
@@ -331,18 +183,21 @@ fn paper_rows(model: UavModel) -> &'static [PaperRow; 7] {
 // ---------------------------------------------------------------------------------------------
 // Results.
 
-/// Every metric of one (cell, method, seed) run; the runner's output record.
+/// Every deterministic metric of one (cell, method, seed) run: one row of `results.csv` and
+/// `results.json`, and the result of a cached run (whose wall-clock times sit beside it, in
+/// [`TimingRow`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct RunResult {
+pub struct ResultRow {
     /// UAV model of the cell.
     pub model: UavModel,
     /// Noise shape of the cell.
     pub noise: NoiseModel,
     /// Attack model of the cell.
     pub attack: AttackModel,
-    /// Method name as `Detector::name` returns it.
-    pub method: String,
+    /// The method, written by its table name.
+    #[serde(with = "by_name")]
+    pub method: Method,
     /// Experiment seed.
     pub seed: u64,
     /// Per-step precision on the test split (eq:precision).
@@ -377,13 +232,9 @@ pub struct RunResult {
     /// Streaming per-step F1; learning methods only.
     #[serde(default)]
     pub stream_f1: Option<f64>,
-    /// Wall-clock training time in seconds (not written to `results.csv`/`results.json`).
-    pub train_s: f64,
-    /// Wall-clock scoring time of the test split in seconds (idem).
-    pub score_s: f64,
 }
 
-impl RunResult {
+impl ResultRow {
     /// The cell of this result.
     pub fn cell(&self) -> Cell {
         Cell { model: self.model, noise: self.noise, attack: self.attack }
@@ -394,13 +245,6 @@ impl RunResult {
     /// # Errors
     /// [`TableError::Value`] naming the first bad field.
     pub fn check(&self) -> Result<()> {
-        let bad = |field: &'static str, value: f64| TableError::Value {
-            cell: self.cell(),
-            method: self.method.clone(),
-            seed: self.seed,
-            field,
-            value,
-        };
         for (field, v) in [
             ("precision", self.precision),
             ("recall", self.recall),
@@ -412,98 +256,27 @@ impl RunResult {
             ("stream_f1", self.stream_f1.unwrap_or(0.0)),
         ] {
             if !(0.0..=1.0).contains(&v) {
-                return Err(bad(field, v));
+                return Err(self.bad(field, v));
             }
         }
         for (field, v) in [
             ("delay_median_s", self.delay_median_s.unwrap_or(0.0)),
             ("delay_p90_s", self.delay_p90_s.unwrap_or(0.0)),
             ("false_alarms_per_min", self.false_alarms_per_min),
-            ("train_s", self.train_s),
-            ("score_s", self.score_s),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(bad(field, v));
+                return Err(self.bad(field, v));
             }
         }
         Ok(())
     }
 
-    fn sort_key(&self) -> (Cell, MethodSortKey<'_>, u64) {
-        (self.cell(), method_sort_key(&self.method), self.seed)
+    fn bad(&self, field: &'static str, value: f64) -> TableError {
+        TableError::Value { cell: self.cell(), method: self.method, seed: self.seed, field, value }
     }
-}
 
-/// The deterministic part of a [`RunResult`]: one row of `results.csv` / `results.json`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ResultRow {
-    /// UAV model.
-    pub model: UavModel,
-    /// Noise shape.
-    pub noise: NoiseModel,
-    /// Attack model.
-    pub attack: AttackModel,
-    /// Method name.
-    pub method: String,
-    /// Experiment seed.
-    pub seed: u64,
-    /// Per-step precision.
-    pub precision: f64,
-    /// Per-step recall.
-    pub recall: f64,
-    /// Per-step F1.
-    pub f1: f64,
-    /// ROC AUC.
-    pub roc_auc: f64,
-    /// PR AUC (average precision).
-    pub pr_auc: f64,
-    /// Median detection delay in seconds.
-    pub delay_median_s: Option<f64>,
-    /// 90th-percentile detection delay in seconds.
-    pub delay_p90_s: Option<f64>,
-    /// Number of attack intervals.
-    pub n_intervals: u64,
-    /// Missed attack intervals.
-    pub n_missed: u64,
-    /// False-alarm events per minute of clean flight.
-    pub false_alarms_per_min: f64,
-    /// Number of test residue steps.
-    pub n_test_steps: u64,
-    /// Streaming per-step precision (learning methods).
-    #[serde(default)]
-    pub stream_precision: Option<f64>,
-    /// Streaming per-step recall (learning methods).
-    #[serde(default)]
-    pub stream_recall: Option<f64>,
-    /// Streaming per-step F1 (learning methods).
-    #[serde(default)]
-    pub stream_f1: Option<f64>,
-}
-
-impl From<&RunResult> for ResultRow {
-    fn from(r: &RunResult) -> Self {
-        Self {
-            model: r.model,
-            noise: r.noise,
-            attack: r.attack,
-            method: r.method.clone(),
-            seed: r.seed,
-            precision: r.precision,
-            recall: r.recall,
-            f1: r.f1,
-            roc_auc: r.roc_auc,
-            pr_auc: r.pr_auc,
-            delay_median_s: r.delay_median_s,
-            delay_p90_s: r.delay_p90_s,
-            n_intervals: r.n_intervals,
-            n_missed: r.n_missed,
-            false_alarms_per_min: r.false_alarms_per_min,
-            n_test_steps: r.n_test_steps,
-            stream_precision: r.stream_precision,
-            stream_recall: r.stream_recall,
-            stream_f1: r.stream_f1,
-        }
+    fn sort_key(&self) -> (Cell, usize, u64) {
+        (self.cell(), method_key(self.method), self.seed)
     }
 }
 
@@ -517,14 +290,37 @@ pub struct TimingRow {
     pub noise: NoiseModel,
     /// Attack model.
     pub attack: AttackModel,
-    /// Method name.
-    pub method: String,
+    /// The method, by its table name.
+    #[serde(with = "by_name")]
+    pub method: Method,
     /// Experiment seed.
     pub seed: u64,
     /// Training wall time in seconds.
     pub train_s: f64,
     /// Scoring wall time in seconds.
     pub score_s: f64,
+}
+
+impl TimingRow {
+    /// The timings of the run whose result is `r`.
+    #[must_use]
+    pub fn of(r: &ResultRow, train_s: f64, score_s: f64) -> Self {
+        Self { model: r.model, noise: r.noise, attack: r.attack, method: r.method, seed: r.seed, train_s, score_s }
+    }
+
+    /// Checks that both times are finite and non-negative.
+    ///
+    /// # Errors
+    /// [`TableError::Value`] naming the bad field.
+    pub fn check(&self) -> Result<()> {
+        for (field, value) in [("train_s", self.train_s), ("score_s", self.score_s)] {
+            if !(value.is_finite() && value >= 0.0) {
+                let cell = Cell { model: self.model, noise: self.noise, attack: self.attack };
+                return Err(TableError::Value { cell, method: self.method, seed: self.seed, field, value });
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The `results.json` file: a versioned list of rows.
@@ -542,15 +338,15 @@ pub struct ResultsFile {
 ///
 /// # Errors
 /// [`TableError::Value`] or [`TableError::Duplicate`].
-pub fn sorted(results: &[RunResult]) -> Result<Vec<&RunResult>> {
+pub fn sorted(results: &[ResultRow]) -> Result<Vec<&ResultRow>> {
     for r in results {
         r.check()?;
     }
-    let mut out: Vec<&RunResult> = results.iter().collect();
-    out.sort_by(|a, b| a.sort_key().cmp(&b.sort_key()));
+    let mut out: Vec<&ResultRow> = results.iter().collect();
+    out.sort_by_key(|r| r.sort_key());
     for w in out.windows(2) {
         if w[0].sort_key() == w[1].sort_key() {
-            return Err(TableError::Duplicate { cell: w[0].cell(), method: w[0].method.clone(), seed: w[0].seed });
+            return Err(TableError::Duplicate { cell: w[0].cell(), method: w[0].method, seed: w[0].seed });
         }
     }
     Ok(out)
@@ -560,28 +356,20 @@ pub fn sorted(results: &[RunResult]) -> Result<Vec<&RunResult>> {
 ///
 /// # Errors
 /// As [`sorted`].
-pub fn results_csv(results: &[RunResult]) -> Result<String> {
-    let rows: Vec<ResultRow> = sorted(results)?.into_iter().map(ResultRow::from).collect();
-    to_csv(&rows)
+pub fn results_csv(results: &[ResultRow]) -> Result<String> {
+    to_csv(&sorted(results)?)
 }
 
 /// `timings.csv`: wall-clock times per (cell, method, seed), in table order.
 ///
 /// # Errors
-/// As [`sorted`].
-pub fn timings_csv(results: &[RunResult]) -> Result<String> {
-    let rows: Vec<TimingRow> = sorted(results)?
-        .into_iter()
-        .map(|r| TimingRow {
-            model: r.model,
-            noise: r.noise,
-            attack: r.attack,
-            method: r.method.clone(),
-            seed: r.seed,
-            train_s: r.train_s,
-            score_s: r.score_s,
-        })
-        .collect();
+/// [`TableError::Value`] for a time that is not finite and non-negative.
+pub fn timings_csv(timings: &[TimingRow]) -> Result<String> {
+    for t in timings {
+        t.check()?;
+    }
+    let mut rows: Vec<&TimingRow> = timings.iter().collect();
+    rows.sort_by_key(|t| (Cell { model: t.model, noise: t.noise, attack: t.attack }, method_key(t.method), t.seed));
     to_csv(&rows)
 }
 
@@ -599,10 +387,10 @@ pub(crate) fn to_csv<T: Serialize>(rows: &[T]) -> Result<String> {
 ///
 /// # Errors
 /// As [`sorted`].
-pub fn results_json(results: &[RunResult]) -> Result<String> {
+pub fn results_json(results: &[ResultRow]) -> Result<String> {
     let file = ResultsFile {
         format_version: RESULTS_FORMAT_VERSION,
-        results: sorted(results)?.into_iter().map(ResultRow::from).collect(),
+        results: sorted(results)?.into_iter().cloned().collect(),
     };
     let mut s = serde_json::to_string_pretty(&file)
         .map_err(|e| TableError::Parse { path: PathBuf::from("<json>"), msg: e.to_string() })?;
@@ -661,7 +449,7 @@ pub struct Summary {
     /// The cell.
     pub cell: Cell,
     /// The method.
-    pub method: String,
+    pub method: Method,
     /// Number of seeds.
     pub n_seeds: usize,
     /// Per-step precision.
@@ -690,21 +478,22 @@ pub struct Summary {
 ///
 /// # Errors
 /// As [`sorted`].
-pub fn summarise(results: &[RunResult]) -> Result<Vec<Summary>> {
-    let mut groups: BTreeMap<(Cell, MethodSortKey<'_>), Vec<&RunResult>> = BTreeMap::new();
+pub fn summarise(results: &[ResultRow]) -> Result<Vec<Summary>> {
+    let mut groups: BTreeMap<(Cell, usize), Vec<&ResultRow>> = BTreeMap::new();
     for r in sorted(results)? {
-        groups.entry((r.cell(), method_sort_key(&r.method))).or_default().push(r);
+        groups.entry((r.cell(), method_key(r.method))).or_default().push(r);
     }
     let mut out = Vec::with_capacity(groups.len());
-    for ((cell, (_, _, method)), rs) in groups {
-        let col = |f: fn(&RunResult) -> f64| rs.iter().map(|r| f(r)).collect::<Vec<f64>>();
-        let opt = |f: fn(&RunResult) -> Option<f64>| -> Result<Option<MeanStd>> {
+    for ((cell, _), rs) in groups {
+        let method = rs[0].method;
+        let col = |f: fn(&ResultRow) -> f64| rs.iter().map(|r| f(r)).collect::<Vec<f64>>();
+        let opt = |f: fn(&ResultRow) -> Option<f64>| -> Result<Option<MeanStd>> {
             let v: Vec<f64> = rs.iter().filter_map(|r| f(r)).collect();
             Ok(if v.is_empty() { None } else { Some(MeanStd::new("optional metric", &v)?) })
         };
         out.push(Summary {
             cell,
-            method: method.to_owned(),
+            method,
             n_seeds: rs.len(),
             precision: MeanStd::new("precision", &col(|r| r.precision))?,
             recall: MeanStd::new("recall", &col(|r| r.recall))?,
@@ -729,16 +518,15 @@ const MISSING: &str = "–";
 
 /// The reproduced rows of one table: method → `[P, R, F1]` summaries per column.
 struct Grid<'a> {
-    rows: Vec<(&'a str, MethodGroup, [Option<&'a Summary>; 4])>,
+    rows: Vec<(Method, MethodGroup, [Option<&'a Summary>; 4])>,
     seed_counts: Vec<usize>,
 }
 
 fn grid(summaries: &[Summary], model: UavModel) -> Grid<'_> {
-    let mut rows: Vec<(&str, MethodGroup, [Option<&Summary>; 4])> = Vec::new();
+    let mut rows: Vec<(Method, MethodGroup, [Option<&Summary>; 4])> = Vec::new();
     let mut seed_counts = Vec::new();
-    let mut methods: Vec<&str> =
-        summaries.iter().filter(|s| s.cell.model == model).map(|s| s.method.as_str()).collect();
-    methods.sort_by_key(|m| method_sort_key(m));
+    let mut methods: Vec<Method> = summaries.iter().filter(|s| s.cell.model == model).map(|s| s.method).collect();
+    methods.sort_by_key(|m| method_key(*m));
     methods.dedup();
     for m in methods {
         let mut cols = [None; 4];
@@ -750,7 +538,7 @@ fn grid(summaries: &[Summary], model: UavModel) -> Grid<'_> {
             }
         }
         if cols.iter().any(Option::is_some) {
-            rows.push((m, method_key(m).0, cols));
+            rows.push((m, m.group(), cols));
         }
     }
     seed_counts.sort_unstable();
@@ -774,13 +562,6 @@ fn arabic(model: UavModel) -> u8 {
     }
 }
 
-fn roman(model: UavModel) -> &'static str {
-    match model {
-        UavModel::I => "I",
-        UavModel::II => "II",
-    }
-}
-
 const MD_HEADER: &str = "| Group | Method | Exp A-I P | Exp A-I R | Exp A-I F1 | Exp A-II P | Exp A-II R | Exp A-II F1 \
      | Lap A-I P | Lap A-I R | Lap A-I F1 | Lap A-II P | Lap A-II R | Lap A-II F1 |\n\
      |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
@@ -790,10 +571,10 @@ const MD_HEADER: &str = "| Group | Method | Exp A-I P | Exp A-I R | Exp A-I F1 |
 ///
 /// # Errors
 /// As [`summarise`].
-pub fn table_markdown(results: &[RunResult], model: UavModel) -> Result<String> {
+pub fn table_markdown(results: &[ResultRow], model: UavModel) -> Result<String> {
     let summaries = summarise(results)?;
     let g = grid(&summaries, model);
-    let n = roman(model);
+    let n = model.roman();
     let mut s = String::new();
     // Writing to a String cannot fail.
     let _ = writeln!(s, "## Table {n}: comparison results for Model {n}\n");
@@ -812,7 +593,7 @@ pub fn table_markdown(results: &[RunResult], model: UavModel) -> Result<String> 
     for (method, group, cols) in &g.rows {
         let label = if prev_group == Some(*group) { "" } else { group.label() };
         prev_group = Some(*group);
-        let _ = write!(s, "| {label} | {} |", md_escape(method));
+        let _ = write!(s, "| {label} | {} |", md_escape(method.name()));
         for c in cols {
             match c {
                 Some(sm) => {
@@ -830,7 +611,7 @@ pub fn table_markdown(results: &[RunResult], model: UavModel) -> Result<String> 
     s.push_str(MD_HEADER);
     let mut prev_group = None;
     for row in paper_rows(model) {
-        let group = method_key(row.method).0;
+        let group = row.method.group();
         let label = if prev_group == Some(group) { "" } else { group.label() };
         prev_group = Some(group);
         let _ = write!(s, "| {label} | {} |", row.method);
@@ -864,7 +645,7 @@ fn tex_escape(s: &str) -> String {
 }
 
 fn tex_head(s: &mut String, model: UavModel, caption: &str, label: &str) {
-    let n = roman(model);
+    let n = model.roman();
     let _ = writeln!(s, "\\begin{{table*}}[h]\n\\centering\n\\caption{{{caption}}}\n\\label{{{label}}}");
     let _ = writeln!(s, "\\bgroup\n\\renewcommand{{\\arraystretch}}{{1.5}}\n\\scriptsize");
     let _ = writeln!(
@@ -913,10 +694,10 @@ fn tex_rows(s: &mut String, rows: &[(MethodGroup, String, Vec<String>)]) {
 ///
 /// # Errors
 /// As [`summarise`].
-pub fn table_latex(results: &[RunResult], model: UavModel) -> Result<String> {
+pub fn table_latex(results: &[ResultRow], model: UavModel) -> Result<String> {
     let summaries = summarise(results)?;
     let g = grid(&summaries, model);
-    let n = roman(model);
+    let n = model.roman();
     let mut s = String::new();
     let _ = writeln!(s, "% Table {n}, generated by eval::table from the run results; do not edit by hand.");
     let _ = writeln!(s, "% Needs \\usepackage{{multirow}} and \\usepackage{{tabularx}}.");
@@ -941,7 +722,7 @@ pub fn table_latex(results: &[RunResult], model: UavModel) -> Result<String> {
                     None => ["--".to_owned(), "--".to_owned(), "--".to_owned()],
                 })
                 .collect();
-            (*group, tex_escape(method), cells)
+            (*group, tex_escape(method.name()), cells)
         })
         .collect();
     tex_rows(&mut s, &rows);
@@ -953,7 +734,7 @@ pub fn table_latex(results: &[RunResult], model: UavModel) -> Result<String> {
         .iter()
         .map(|row| {
             let cells = row.values.iter().flat_map(|c| c.map(|v| format!("{v:.2}"))).collect();
-            (method_key(row.method).0, row.method.to_owned(), cells)
+            (row.method.group(), row.method.name().to_owned(), cells)
         })
         .collect();
     tex_rows(&mut s, &rows);
@@ -966,7 +747,7 @@ pub fn table_latex(results: &[RunResult], model: UavModel) -> Result<String> {
 ///
 /// # Errors
 /// As [`summarise`].
-pub fn metrics_markdown(results: &[RunResult]) -> Result<String> {
+pub fn metrics_markdown(results: &[ResultRow]) -> Result<String> {
     let mut s = String::new();
     s.push_str(
         "| Cell | Method | ROC AUC | PR AUC | Delay median (s) | Delay p90 (s) | Missed / intervals | False alarms / min |\n\
@@ -978,7 +759,7 @@ pub fn metrics_markdown(results: &[RunResult]) -> Result<String> {
             s,
             "| {} | {} | {} | {} | {} | {} | {} / {} | {} |",
             sm.cell,
-            md_escape(&sm.method),
+            md_escape(sm.method.name()),
             sm.roc_auc,
             sm.pr_auc,
             opt(&sm.delay_median_s),
@@ -997,7 +778,7 @@ pub fn metrics_markdown(results: &[RunResult]) -> Result<String> {
 ///
 /// # Errors
 /// As [`summarise`].
-pub fn streaming_markdown(results: &[RunResult]) -> Result<String> {
+pub fn streaming_markdown(results: &[ResultRow]) -> Result<String> {
     let summaries = summarise(results)?;
     let mut s = String::new();
     let _ = writeln!(s, "## Streaming against offline F1 of the learning methods\n");
@@ -1015,7 +796,7 @@ pub fn streaming_markdown(results: &[RunResult]) -> Result<String> {
             if cols.iter().all(|c| c.is_none_or(|sm| sm.stream_f1.is_none())) {
                 continue;
             }
-            let _ = write!(s, "| {} | {} |", roman(model), md_escape(method));
+            let _ = write!(s, "| {} | {} |", model.roman(), md_escape(method.name()));
             for c in cols {
                 match c.and_then(|sm| sm.stream_f1.map(|st| (sm.f1, st))) {
                     Some((off, st)) => {
@@ -1038,7 +819,7 @@ pub fn streaming_markdown(results: &[RunResult]) -> Result<String> {
 ///
 /// # Errors
 /// As [`summarise`]; [`TableError::Io`] when a file cannot be written.
-pub fn write_outputs(out_dir: &Path, results: &[RunResult]) -> Result<Vec<PathBuf>> {
+pub fn write_outputs(out_dir: &Path, results: &[ResultRow], timings: &[TimingRow]) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(out_dir).map_err(|source| IoError::Fs {
         path: out_dir.to_owned(),
         op: "create directory",
@@ -1053,7 +834,7 @@ pub fn write_outputs(out_dir: &Path, results: &[RunResult]) -> Result<Vec<PathBu
         ("metrics.md", metrics_markdown(results)?),
         ("results.csv", results_csv(results)?),
         ("results.json", results_json(results)?),
-        ("timings.csv", timings_csv(results)?),
+        ("timings.csv", timings_csv(timings)?),
     ];
     let mut paths = Vec::with_capacity(files.len());
     for (name, text) in files {

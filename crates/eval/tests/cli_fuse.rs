@@ -87,7 +87,7 @@ fn fuse_square_cusum_fitted_on_quick_cell() {
     let out = dir.path().join("fuse");
     let o = quadformer(&["fuse", "--scenario", "square", "--detector", "cusum", "--latency-s", "0", "--out", s(&out)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stderr(&o).contains("fitted CUSUM on model2-gaussian-persistent"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("fitted CUSUM on m2-gaussian-a2"), "{}", stderr(&o));
     let rows = read_rows(&out.join("scenarios.csv"));
     let clean = rows.iter().find(|r| r.0 == "no_attack").unwrap().3;
     let det = rows.iter().find(|r| r.0 == "attack_detected").unwrap();

@@ -1,7 +1,7 @@
 //! End-to-end tests of `quadformer dataset | train | detect` on the quick cell
 //! `m1-exponential-a1` (UAV Model I, exponential GPS noise, Attack I): the round trip finds
-//! the attacks better than chance for QUADFormer (checkpoint) and CUSUM (re-fitted from the
-//! recorded training data); a corrupt checkpoint, a channel mismatch and a bad CSV line give
+//! the attacks better than chance for QUADFormer (checkpoint) and CUSUM (saved parameters),
+//! both loaded without fitting; a corrupt checkpoint, a channel mismatch and a bad CSV line give
 //! errors naming the file; no partial output is left behind.
 
 // Helpers outside `#[test]` functions unwrap too: a failure there is a test failure.
@@ -221,16 +221,23 @@ fn quadformer_round_trip_finds_attacks_and_rejects_a_corrupt_checkpoint() {
 }
 
 #[test]
-fn refitted_method_round_trip_is_deterministic_and_finds_attacks() {
+fn saved_statistical_method_round_trip_is_deterministic_and_finds_attacks() {
     let tmp = tempfile::tempdir().unwrap();
     let ds = dataset(tmp.path());
     let model = train(tmp.path(), &ds, "cusum");
-    assert_eq!(files(&model.join("data/train")).len(), files(&ds.join("train")).len());
-    assert_eq!(files(&model.join("data/valid")).len(), files(&ds.join("valid")).len());
+    let names: Vec<String> = files(&model).iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
+    assert_eq!(names, ["detector.json", "model.json"], "the fitted state, no copy of the training data");
     let first = detect_all(tmp.path(), &ds, &model);
     let alarms = std::fs::read(tmp.path().join("alarms-0.csv")).unwrap();
     assert_eq!(detect_all(tmp.path(), &ds, &model), first);
-    assert_eq!(std::fs::read(tmp.path().join("alarms-0.csv")).unwrap(), alarms, "re-fit is bit-identical");
+    assert_eq!(std::fs::read(tmp.path().join("alarms-0.csv")).unwrap(), alarms, "loading is bit-identical");
+    // A corrupt state file is named.
+    let state = model.join("detector.json");
+    let text = std::fs::read_to_string(&state).unwrap();
+    std::fs::write(&state, text.replacen('1', "2", 1)).unwrap();
+    let err = fails(&["detect", "--model", s(&model), "--in", s(&files(&ds.join("test"))[0]), "--out", s(&tmp.path().join("x.csv"))]);
+    assert!(err.contains("detector.json") && err.contains("corrupted"), "{err}");
+    std::fs::write(&state, text).unwrap();
     assert_better_than_chance(&first);
     let log = ok(&[
         "detect",
@@ -297,7 +304,7 @@ fn channel_mismatch_and_bad_lines_name_the_file() {
 fn help_says_how_each_method_is_stored() {
     let out = quadformer(&["train", "--help"]);
     let text = String::from_utf8(out.stdout).unwrap();
-    assert!(text.contains("quadformer.safetensors") && text.contains("re-fits"), "{text}");
+    assert!(text.contains("quadformer.safetensors") && text.contains("detector.json"), "{text}");
     let out = quadformer(&["--help"]);
     let text = String::from_utf8(out.stdout).unwrap();
     for cmd in ["dataset", "train", "detect"] {

@@ -207,7 +207,7 @@ fn result_types_are_send_and_sync() {
     assert_send_sync::<MeanStd>();
     assert_send_sync::<MetricsError>();
     assert_send_sync::<eval::metrics::Evaluation>();
-    assert_send_sync::<eval::table::RunResult>();
+    assert_send_sync::<eval::table::ResultRow>();
     assert_send_sync::<eval::table::TableError>();
     assert_send_sync::<eval::plot::PlotError>();
 }

@@ -309,7 +309,7 @@ fn pointers(v: &serde_json::Value, here: String, out: &mut Vec<String>) {
     out.push(here);
 }
 
-/// A model directory of a re-fitted method (CUSUM), trained once.
+/// A model directory of a statistical method (CUSUM), trained once.
 fn model_dir() -> &'static Path {
     static DIR: std::sync::OnceLock<(tempfile::TempDir, PathBuf)> = std::sync::OnceLock::new();
     &DIR.get_or_init(|| {
@@ -350,10 +350,10 @@ proptest! {
         let dir = tmp.path().join("model");
         std::fs::create_dir(&dir).unwrap();
         std::fs::write(dir.join("model.json"), bad.to_string()).unwrap();
-        if let Ok(m) = eval::cli::train::read_manifest(&dir) {
+        if let Ok(m) = eval::model_dir::read_manifest(&dir) {
             // Whatever validates only names files inside the model directory, which has none:
             // loading reports them missing.
-            let _ = eval::cli::detect::load_detector(&dir, &m);
+            let _ = eval::model_dir::load(&dir, &m);
         }
     }
 }

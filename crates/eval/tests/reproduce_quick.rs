@@ -5,10 +5,11 @@
 
 use std::path::Path;
 
+use eval::cell::Cell;
 use eval::closed_loop::{ClosedLoopRow, Family};
 use eval::dataset::SplitSteps;
-use eval::reproduce::{MatrixConfig, Options, Stages, parse_cell, reproduce};
-use eval::runner::Method;
+use eval::methods::Method;
+use eval::reproduce::{MatrixConfig, Options, Stages, reproduce};
 use eval::table::read_results_csv;
 
 fn micro_options(out: &Path) -> Options {
@@ -27,7 +28,7 @@ fn micro_options(out: &Path) -> Options {
         config,
         quick: true,
         seeds: 1,
-        cells: vec![parse_cell("m1-exponential-a1").unwrap(), parse_cell("m1-exponential-a2").unwrap()],
+        cells: vec![Cell::parse("m1-exponential-a1").unwrap(), Cell::parse("m1-exponential-a2").unwrap()],
         methods: Method::ALL.to_vec(),
         out: out.to_owned(),
         progress: false,

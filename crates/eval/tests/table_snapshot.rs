@@ -2,54 +2,58 @@
 //! hand-made result set; determinism and error cases of `eval::table`.
 //! Update the snapshots with `UPDATE_EXPECT=1 cargo test -p eval --test table_snapshot`.
 
+use eval::cell::{AttackModel, NoiseModel, UavModel};
+use eval::methods::Method;
 use eval::table::{
-    AttackModel, NoiseModel, RunResult, TableError, UavModel, metrics_markdown, read_results_csv, read_results_json,
-    results_csv, results_json, streaming_markdown, table_latex, table_markdown, write_outputs,
+    ResultRow, TableError, TimingRow, metrics_markdown, read_results_csv, read_results_json, results_csv, results_json,
+    streaming_markdown, table_latex, table_markdown, write_outputs,
 };
 use expect_test::expect;
 
-fn run(model: UavModel, noise: NoiseModel, attack: AttackModel, method: &str, seed: u64, f1: f64) -> RunResult {
-    RunResult {
+fn run(model: UavModel, noise: NoiseModel, attack: AttackModel, method: Method, seed: u64, f1: f64) -> ResultRow {
+    ResultRow {
         model,
         noise,
         attack,
-        method: method.to_owned(),
+        method,
         seed,
         precision: f1 + 0.01,
         recall: f1 - 0.01,
         f1,
         roc_auc: 0.9,
         pr_auc: 0.8,
-        delay_median_s: if method == "CUSUM" { None } else { Some(0.5 + seed as f64 * 0.1) },
-        delay_p90_s: if method == "CUSUM" { None } else { Some(1.5) },
+        delay_median_s: if method == Method::Cusum { None } else { Some(0.5 + seed as f64 * 0.1) },
+        delay_p90_s: if method == Method::Cusum { None } else { Some(1.5) },
         n_intervals: 4,
-        n_missed: if method == "CUSUM" { 4 } else { 1 },
+        n_missed: if method == Method::Cusum { 4 } else { 1 },
         false_alarms_per_min: 0.25,
         n_test_steps: 1000,
-        stream_precision: (method == "QUADFormer").then_some(f1 - 0.09),
-        stream_recall: (method == "QUADFormer").then_some(f1 - 0.11),
-        stream_f1: (method == "QUADFormer").then_some(f1 - 0.1),
-        train_s: 1.0 + seed as f64,
-        score_s: 0.1,
+        stream_precision: (method == Method::QuadFormer).then_some(f1 - 0.09),
+        stream_recall: (method == Method::QuadFormer).then_some(f1 - 0.11),
+        stream_f1: (method == Method::QuadFormer).then_some(f1 - 0.1),
     }
 }
 
-/// Model I: QUADFormer and CUSUM over two seeds in two columns, an extra method in one column,
+fn timings(rows: &[ResultRow]) -> Vec<TimingRow> {
+    rows.iter().map(|r| TimingRow::of(r, 1.0 + r.seed as f64, 0.1)).collect()
+}
+
+/// Model I: QUADFormer and CUSUM over two seeds in two columns, an extra method (the PX4 gate) in one column,
 /// given out of order; Model II: one QUADFormer run.
-fn sample() -> Vec<RunResult> {
+fn sample() -> Vec<ResultRow> {
     use AttackModel as A;
     use NoiseModel as N;
     use UavModel as M;
     vec![
-        run(M::I, N::Laplace, A::II, "QUADFormer", 2, 0.90),
-        run(M::I, N::Exponential, A::I, "QUADFormer", 1, 0.92),
-        run(M::I, N::Exponential, A::I, "QUADFormer", 2, 0.94),
-        run(M::I, N::Laplace, A::II, "QUADFormer", 1, 0.88),
-        run(M::I, N::Exponential, A::I, "CUSUM", 1, 0.60),
-        run(M::I, N::Exponential, A::I, "CUSUM", 2, 0.64),
-        run(M::I, N::Exponential, A::I, "PX4 gate (5 sd)", 1, 0.50),
-        run(M::I, N::Exponential, A::I, "PX4 gate (5 sd)", 2, 0.52),
-        run(M::II, N::Exponential, A::II, "QUADFormer", 1, 0.91),
+        run(M::I, N::Laplace, A::II, Method::QuadFormer, 2, 0.90),
+        run(M::I, N::Exponential, A::I, Method::QuadFormer, 1, 0.92),
+        run(M::I, N::Exponential, A::I, Method::QuadFormer, 2, 0.94),
+        run(M::I, N::Laplace, A::II, Method::QuadFormer, 1, 0.88),
+        run(M::I, N::Exponential, A::I, Method::Cusum, 1, 0.60),
+        run(M::I, N::Exponential, A::I, Method::Cusum, 2, 0.64),
+        run(M::I, N::Exponential, A::I, Method::Px4Gate, 1, 0.50),
+        run(M::I, N::Exponential, A::I, Method::Px4Gate, 2, 0.52),
+        run(M::II, N::Exponential, A::II, Method::QuadFormer, 1, 0.91),
     ]
 }
 
@@ -66,7 +70,7 @@ fn table1_markdown_snapshot() {
         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|
         | Traditional | CUSUM | 0.63 ± 0.03 | 0.61 ± 0.03 | 0.62 ± 0.03 | – | – | – | – | – | – | – | – | – |
         | Ours | QUADFormer | 0.94 ± 0.01 | 0.92 ± 0.01 | 0.93 ± 0.01 | – | – | – | – | – | – | 0.90 ± 0.01 | 0.88 ± 0.01 | 0.89 ± 0.01 |
-        | Extra (not in the paper) | PX4 gate (5 sd) | 0.52 ± 0.01 | 0.50 ± 0.01 | 0.51 ± 0.01 | – | – | – | – | – | – | – | – | – |
+        | Extra (not in the paper) | PX4 gate | 0.52 ± 0.01 | 0.50 ± 0.01 | 0.51 ± 0.01 | – | – | – | – | – | – | – | – | – |
 
         ### Paper's numbers (Table I of the paper), for comparison only
 
@@ -119,7 +123,7 @@ fn table1_latex_snapshot() {
         \hline
         \multirow{1}{*}{\textbf{Ours}} & QUADFormer & $0.94 \pm 0.01$ & $0.92 \pm 0.01$ & $0.93 \pm 0.01$ & -- & -- & -- & -- & -- & -- & $0.90 \pm 0.01$ & $0.88 \pm 0.01$ & $0.89 \pm 0.01$ \\
         \hline
-        \multirow{1}{*}{\parbox{2cm}{\centering Extra (not in\\ the paper)}} & PX4 gate (5 sd) & $0.52 \pm 0.01$ & $0.50 \pm 0.01$ & $0.51 \pm 0.01$ & -- & -- & -- & -- & -- & -- & -- & -- & -- \\
+        \multirow{1}{*}{\parbox{2cm}{\centering Extra (not in\\ the paper)}} & PX4 gate & $0.52 \pm 0.01$ & $0.50 \pm 0.01$ & $0.51 \pm 0.01$ & -- & -- & -- & -- & -- & -- & -- & -- & -- \\
         \hline
         \end{tabularx}
         \egroup
@@ -170,7 +174,7 @@ fn metrics_and_csv_snapshot() {
         |---|---|---:|---:|---:|---:|---:|---:|
         | Model I, exponential noise, Attack I | CUSUM | 0.90 ± 0.00 | 0.80 ± 0.00 | – | – | 8 / 8 | 0.25 ± 0.00 |
         | Model I, exponential noise, Attack I | QUADFormer | 0.90 ± 0.00 | 0.80 ± 0.00 | 0.65 ± 0.07 | 1.50 ± 0.00 | 2 / 8 | 0.25 ± 0.00 |
-        | Model I, exponential noise, Attack I | PX4 gate (5 sd) | 0.90 ± 0.00 | 0.80 ± 0.00 | 0.65 ± 0.07 | 1.50 ± 0.00 | 2 / 8 | 0.25 ± 0.00 |
+        | Model I, exponential noise, Attack I | PX4 gate | 0.90 ± 0.00 | 0.80 ± 0.00 | 0.65 ± 0.07 | 1.50 ± 0.00 | 2 / 8 | 0.25 ± 0.00 |
         | Model I, laplace noise, Attack II | QUADFormer | 0.90 ± 0.00 | 0.80 ± 0.00 | 0.65 ± 0.07 | 1.50 ± 0.00 | 2 / 8 | 0.25 ± 0.00 |
         | Model II, exponential noise, Attack II | QUADFormer | 0.90 | 0.80 | 0.60 | 1.50 | 1 / 4 | 0.25 |
     "#]]
@@ -191,8 +195,8 @@ fn metrics_and_csv_snapshot() {
         I,exponential,I,CUSUM,2,0.65,0.63,0.64,0.9,0.8,,,4,4,0.25,1000,,,
         I,exponential,I,QUADFormer,1,0.93,0.91,0.92,0.9,0.8,0.6,1.5,4,1,0.25,1000,0.8300000000000001,0.81,0.8200000000000001
         I,exponential,I,QUADFormer,2,0.95,0.9299999999999999,0.94,0.9,0.8,0.7,1.5,4,1,0.25,1000,0.85,0.83,0.84
-        I,exponential,I,PX4 gate (5 sd),1,0.51,0.49,0.5,0.9,0.8,0.6,1.5,4,1,0.25,1000,,,
-        I,exponential,I,PX4 gate (5 sd),2,0.53,0.51,0.52,0.9,0.8,0.7,1.5,4,1,0.25,1000,,,
+        I,exponential,I,PX4 gate,1,0.51,0.49,0.5,0.9,0.8,0.6,1.5,4,1,0.25,1000,,,
+        I,exponential,I,PX4 gate,2,0.53,0.51,0.52,0.9,0.8,0.7,1.5,4,1,0.25,1000,,,
         I,laplace,II,QUADFormer,1,0.89,0.87,0.88,0.9,0.8,0.6,1.5,4,1,0.25,1000,0.79,0.77,0.78
         I,laplace,II,QUADFormer,2,0.91,0.89,0.9,0.9,0.8,0.7,1.5,4,1,0.25,1000,0.81,0.79,0.8
         II,exponential,II,QUADFormer,1,0.92,0.9,0.91,0.9,0.8,0.6,1.5,4,1,0.25,1000,0.8200000000000001,0.8,0.81
@@ -205,8 +209,8 @@ fn outputs_are_deterministic_and_round_trip() -> Result<(), Box<dyn std::error::
     let dir = tempfile::tempdir()?;
     let mut shuffled = sample();
     shuffled.reverse();
-    let a = write_outputs(&dir.path().join("a"), &sample())?;
-    let b = write_outputs(&dir.path().join("b"), &shuffled)?;
+    let a = write_outputs(&dir.path().join("a"), &sample(), &timings(&sample()))?;
+    let b = write_outputs(&dir.path().join("b"), &shuffled, &timings(&shuffled))?;
     for (pa, pb) in a.iter().zip(&b) {
         assert_eq!(std::fs::read(pa)?, std::fs::read(pb)?, "{} differs", pa.display());
     }

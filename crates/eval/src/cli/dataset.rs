@@ -15,13 +15,14 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::cell::Cell;
 use crate::cli::CliError;
 use crate::dataset::{Dataset, Split, SplitSummary, ValidDatasetConfig, build, load_or_build};
 use crate::io::{
     CovarianceLayout, Input, IoError, Output, Overwrite, check_dir_output, check_outputs, write_dir_atomic,
     write_residues, write_text_atomic,
 };
-use crate::reproduce::{MatrixConfig, dataset_config, parse_cell};
+use crate::reproduce::{MatrixConfig, dataset_config};
 
 /// Name of the summary file in a dataset directory.
 pub const DATASET_FILE: &str = "dataset.json";
@@ -96,7 +97,7 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     let cache: Vec<Input<'_>> = args.cache.as_deref().map(|p| Input::new("--cache", p)).into_iter().collect();
     check_outputs(&cache, &[Output::dir("--out", &args.out)])?;
     check_dir_output(&args.out, overwrite)?;
-    let cell = parse_cell(&args.cell).map_err(|e| input(format!("--cell: {e}")))?;
+    let cell = Cell::parse(&args.cell).map_err(|e| input(format!("--cell: {e}")))?;
     if !(args.labelled_fraction.is_finite() && (0.0..=1.0).contains(&args.labelled_fraction)) {
         return Err(input(format!("--labelled-fraction must be in [0, 1], got {}", args.labelled_fraction)));
     }

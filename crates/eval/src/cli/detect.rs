@@ -13,34 +13,23 @@
 //! streaming threshold chosen on validation; without it a step's score may use later steps
 //! (QUADFormer averages every window that covers it).
 //!
-//! QUADFormer is loaded from its checkpoint (size, SHA-256, tensor names and shapes checked);
-//! the other methods are re-fitted from the training data recorded in the model directory
-//! (decision 081), and a warning is printed if the re-fitted threshold differs from the one
-//! recorded at training time.
+//! Every method loads its saved fitted state from the model directory ([`crate::model_dir`],
+//! each file's SHA-256 checked against `model.json`); `detect` never fits.
 
 use std::fmt::Write as _;
-use std::path::{Component, Path, PathBuf};
+use std::path::{Path, PathBuf};
 
 use detection_metrics::Confusion;
-use ekf_residue::Detector;
-use quadformer_model::{ModelError, QuadFormerDetector};
 
 use crate::cli::CliError;
-use crate::cli::train::{
-    ModelManifest, Storage, check_same_channels, read_manifest, read_split, sha256_hex, window_len,
-};
+use crate::cli::train::check_same_channels;
 use crate::io::{Input, IoError, Output, check_outputs, read_residues, write_text_atomic};
-use crate::runner::fit;
-
-/// Relative tolerance between the recorded and the re-fitted threshold before a warning: the
-/// statistical methods re-fit bit-identically; networks may differ in the last bits with the
-/// thread count.
-const THRESHOLD_RTOL: f64 = 1e-9;
+use crate::model_dir;
 
 /// Arguments of `quadformer detect`.
 #[derive(Debug, clap::Args)]
-#[command(after_help = "QUADFormer models load from their checkpoint; the other methods are re-fitted from the \
-training data recorded in the model directory (see `quadformer train --help`, docs/cli.md).")]
+#[command(after_help = "Every method loads the fitted state saved in the model directory; nothing is re-fitted \
+(see `quadformer train --help`, docs/cli.md).")]
 pub struct Args {
     /// Model directory written by `quadformer train`.
     #[arg(long, value_name = "MODEL_DIR")]
@@ -67,17 +56,17 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         &[Input::new("--model", &args.model), Input::new("--in", &args.input)],
         &[Output::file("--out", &args.out)],
     )?;
-    let manifest = read_manifest(&args.model)?;
+    let manifest = model_dir::read_manifest(&args.model)?;
     let input = read_residues(&args.input)?;
     check_same_channels(&args.input, &manifest.channels, input.series().channels())?;
-    let detector = load_detector(&args.model, &manifest)?;
+    let detector = model_dir::load(&args.model, &manifest)?;
     check_same_channels(&args.input, detector.channels(), input.series().channels())?;
     let scored = if args.streaming { detector.score_streaming(input.series()) } else { detector.score(input.series()) };
     let scores = scored.map_err(|e| CliError::Input {
         path: args.input.clone(),
         msg: format!("{} cannot score it: {e}", manifest.method.name()),
     })?;
-    if let Some(len) = window_len(manifest.method, &manifest.configs)
+    if let Some(len) = manifest.method.window_len(&manifest.configs)
         && input.series().len() < len
     {
         eprintln!(
@@ -131,68 +120,6 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         }
     }
     Ok(())
-}
-
-/// Loads (QUADFormer) or re-fits (other methods) the detector of a model directory.
-///
-/// # Errors
-/// [`CliError::Input`] naming the checkpoint or recorded data file that is missing, corrupt or
-/// inconsistent; [`CliError::Run`] if re-fitting fails.
-pub fn load_detector(model_dir: &Path, m: &ModelManifest) -> Result<Box<dyn Detector>, CliError> {
-    match &m.storage {
-        Storage::Checkpoint { manifest, manifest_sha256 } => {
-            let path = inside(model_dir, manifest)?;
-            if let Some(want) = manifest_sha256 {
-                let bytes = std::fs::read(&path)
-                    .map_err(|source| CliError::Io(IoError::Fs { path: path.clone(), op: "read", source }))?;
-                if sha256_hex(&bytes) != *want {
-                    return Err(CliError::Input {
-                        path: path.clone(),
-                        msg: format!("corrupted: SHA-256 differs from the one in {}", crate::cli::train::MODEL_FILE),
-                    });
-                }
-            }
-            // Name each file once: checkpoint errors carry their own file.
-            let det = QuadFormerDetector::load(&path).map_err(|e| match e {
-                ModelError::Checkpoint { path, msg } => CliError::Input { path, msg },
-                ModelError::Io { path, source } => CliError::Io(IoError::Fs { path, op: "read", source }),
-                other => CliError::Input {
-                    path: path.clone(),
-                    msg: format!("cannot load the QUADFormer checkpoint: {other}"),
-                },
-            })?;
-            Ok(Box::new(det))
-        }
-        Storage::Refit { train, valid } => {
-            let files = |names: &[String]| names.iter().map(|n| inside(model_dir, n)).collect::<Result<Vec<_>, _>>();
-            let train = read_split(&files(train)?, Some(&m.channels), false)?;
-            let valid = read_split(&files(valid)?, Some(&m.channels), true)?;
-            let fitted = fit(m.method, &m.configs, &train, &valid).map_err(|e| CliError::Run(e.to_string()))?;
-            let t = fitted.detector.threshold();
-            if (t - m.threshold).abs() > THRESHOLD_RTOL * m.threshold.abs().max(1.0) {
-                eprintln!(
-                    "warning: {}: re-fitted threshold {t} differs from the recorded {}",
-                    model_dir.display(),
-                    m.threshold
-                );
-            }
-            Ok(fitted.detector)
-        }
-    }
-}
-
-/// `rel` resolved in `dir`, refusing absolute paths and `..` (a manifest must not point outside
-/// its model directory).
-fn inside(dir: &Path, rel: &str) -> Result<PathBuf, CliError> {
-    let p = Path::new(rel);
-    if p.components().all(|c| matches!(c, Component::Normal(_))) {
-        Ok(dir.join(p))
-    } else {
-        Err(CliError::Input {
-            path: dir.join(crate::cli::train::MODEL_FILE),
-            msg: format!("file `{rel}` is not inside the model directory"),
-        })
-    }
 }
 
 /// Writes the alarm CSV atomically.

@@ -12,7 +12,7 @@
 //!
 //! Detectors (decision 090): `nis` is resilient-fusion's χ²₃ NIS gate on the GPS innovation
 //! (no fitting); `chi2`, `cusum` and `quadformer` are fitted with [`crate::runner::fit`]
-//! (thresholds chosen on validation) on the quick dataset cell `model2-gaussian-persistent`
+//! (thresholds chosen on validation) on the quick dataset cell `m2-gaussian-a2`
 //! restricted to the GPS channels `gps_x gps_y gps_z`, with the `--quick` method configurations,
 //! or loaded from a model directory (`--model`, written by `quadformer train`), whose training
 //! channels become the fusion's detector channels. Batch detectors run through
@@ -30,13 +30,13 @@ use resilient_fusion::scenario::{Case, Scenario, ScenarioConfig, run_case};
 use uav_dynamics::noise::NoiseShape;
 
 use crate::cli::CliError;
-use crate::cli::detect::load_detector;
 use crate::cli::residues::{ModelArg, flight_filter};
-use crate::cli::train::read_manifest;
+use crate::model_dir;
 use crate::closed_loop::{flight_from_dir, loop_metrics};
 use crate::dataset::{DatasetConfig, load_or_build};
 use crate::io::{Input, Output, check_outputs, write_into_dir_atomic, write_text_atomic};
-use crate::runner::{Method, MethodConfigs, fit};
+use crate::methods::{Method, MethodConfigs};
+use crate::runner::fit;
 use crate::scenarios::{ScenarioRow, markdown, plot_case, rows, write_csv};
 
 /// Scenario selection of `--scenario`.
@@ -122,7 +122,7 @@ impl DetectorArg {
 /// Arguments of `quadformer fuse`.
 #[derive(Debug, clap::Args)]
 #[command(after_help = "Fitted detectors (chi2, cusum, quadformer without --model) are fitted on the quick \
-dataset cell model2-gaussian-persistent restricted to gps_x gps_y gps_z (cached under --cache); see \
+dataset cell m2-gaussian-a2 restricted to gps_x gps_y gps_z (cached under --cache); see \
 docs/decisions/090-fuse-detectors.md and docs/scenarios.md.")]
 pub struct Args {
     /// Which scenario to fly.
@@ -205,14 +205,14 @@ pub fn make_detector(
         return Ok(FusionDetector::Nis);
     };
     if let Some(dir) = model {
-        let manifest = read_manifest(dir)?;
+        let manifest = model_dir::read_manifest(dir)?;
         if manifest.method != method {
             return Err(CliError::Input {
                 path: dir.to_owned(),
                 msg: format!("the model is {}, but --detector is {}", manifest.method.name(), which.label()),
             });
         }
-        return Ok(FusionDetector::Batch(load_detector(dir, &manifest)?));
+        return Ok(FusionDetector::Batch(model_dir::load(dir, &manifest)?));
     }
     let cfg = DatasetConfig {
         seed,

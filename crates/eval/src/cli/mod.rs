@@ -132,6 +132,15 @@ pub fn run(cli: &Cli) -> Result<(), CliError> {
     }
 }
 
+impl From<crate::model_dir::ModelDirError> for CliError {
+    fn from(e: crate::model_dir::ModelDirError) -> Self {
+        match e {
+            crate::model_dir::ModelDirError::Io(e) => Self::Io(e),
+            crate::model_dir::ModelDirError::Invalid { path, msg } => Self::Input { path, msg },
+        }
+    }
+}
+
 /// Errors of the command-line subcommands; each names the file or field concerned.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]

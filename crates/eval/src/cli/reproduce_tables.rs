@@ -4,11 +4,11 @@
 
 use std::path::PathBuf;
 
+use crate::cell::Cell;
 use crate::cli::CliError;
 use crate::io::IoError;
-use crate::reproduce::{MatrixConfig, Options, Stages, parse_cell, reproduce, table_cells};
-use crate::runner::Method;
-use crate::table::Cell;
+use crate::methods::Method;
+use crate::reproduce::{MatrixConfig, Options, Stages, reproduce};
 
 /// Most seeds one invocation accepts: every seed simulates its own paper-scale datasets and
 /// trains every method again (about 10 minutes and 0.5 GB of dataset cache per seed on 2 cores).
@@ -51,9 +51,9 @@ pub struct Args {
 /// every name known, none given twice, `1 ≤ --seeds ≤` [`MAX_SEEDS`].
 fn selection(args: &Args) -> Result<(Vec<Cell>, Vec<Method>, u64), String> {
     let cells: Vec<Cell> = if args.cells.is_empty() {
-        table_cells()
+        Cell::table_cells()
     } else {
-        args.cells.iter().map(|c| parse_cell(c)).collect::<Result<_, _>>().map_err(|e| e.to_string())?
+        args.cells.iter().map(|c| Cell::parse(c)).collect::<Result<_, _>>().map_err(|e| e.to_string())?
     };
     let methods: Vec<Method> = if args.methods.is_empty() {
         Method::ALL.to_vec()

@@ -7,55 +7,20 @@
 //! method chooses its alarm threshold (the `Fit` contract: thresholds on validation only). All
 //! files must share one channel list (the `r_` columns, in order).
 //!
-//! Model directory (decision 081), written atomically:
-//! - `model.json` ([`ModelManifest`]): format name and version, method, channels, fitted
-//!   threshold, seed, the method configurations used, and how the fitted detector is stored
-//!   (plain file names inside the directory; for QUADFormer with the SHA-256 of its checkpoint
-//!   manifest); [`read_manifest`] validates every field;
-//! - QUADFormer: `quadformer.json` + `quadformer.safetensors` (the checkpoint of
-//!   `quadformer_model::checkpoint`: manifest with normaliser, scoring mode and threshold,
-//!   weights with size and SHA-256);
-//! - every other method (cusum, sprt, bht, chi2, px4-gate, svm, cnn, lstm; their fitted types
-//!   have no save format): `data/train/*.csv` and `data/valid/*.csv`, a copy of the training
-//!   data, from which `detect` re-fits the method with the recorded configuration and seed.
+//! The model directory (decision 081, amended by decision 110; [`crate::model_dir`]) holds
+//! `model.json` and the method's saved fitted state, so `quadformer detect` never fits.
 
 use std::path::{Path, PathBuf};
 
-use ekf_residue::{Detector, Fit, LabelledResidues, LabelledSeries};
-use quadformer_model::checkpoint::weights_file_name;
-use serde::{Deserialize, Serialize};
+use ekf_residue::{LabelledResidues, LabelledSeries};
 
 use crate::cli::CliError;
-use crate::io::{
-    CovarianceLayout, Input, IoError, Output, Overwrite, check_dir_output, check_outputs, read_residues,
-    write_bytes_atomic, write_dir_atomic, write_residues, write_text_atomic,
-};
-use crate::runner::{Method, MethodConfigs, fit};
+use crate::io::{Input, IoError, Output, Overwrite, check_dir_output, check_outputs, read_residues};
+use crate::methods::{Method, MethodConfigs};
+use crate::model_dir::{self, Trained};
 
-/// Name of the model manifest in a model directory.
-pub const MODEL_FILE: &str = "model.json";
-/// Format name written into every model manifest.
-pub const MODEL_FORMAT: &str = "quadformer-model-dir";
-/// Current model manifest version.
-pub const MODEL_VERSION: u32 = 1;
-/// QUADFormer checkpoint manifest in a model directory (weights beside it, `.safetensors`).
-pub const CHECKPOINT_FILE: &str = "quadformer.json";
-/// Directory of the recorded training data of re-fitted methods.
-pub const DATA_DIR: &str = "data";
 /// Fewest training residue steps `train` fits on (more for windowed methods: one window).
 pub const MIN_TRAIN_STEPS: usize = 10;
-
-/// Window length of a windowed method (QUADFormer, CNN, LSTM, SVM), `None` for the others.
-#[must_use]
-pub fn window_len(method: Method, cfgs: &MethodConfigs) -> Option<usize> {
-    match method {
-        Method::QuadFormer => Some(cfgs.quadformer.window.len),
-        Method::Cnn => Some(cfgs.cnn.0.window.len),
-        Method::Lstm => Some(cfgs.lstm.0.window.len),
-        Method::Svm => Some(cfgs.svm.window),
-        _ => None,
-    }
-}
 
 /// Checks that the splits can fit `method`: at least [`MIN_TRAIN_STEPS`] training steps and
 /// one window of them; validation with both attacked and clean steps, between which the
@@ -66,7 +31,7 @@ fn check_enough_data(
     train: &LabelledResidues,
     valid: &LabelledResidues,
 ) -> Result<(), CliError> {
-    let window = window_len(args.method, cfgs);
+    let window = args.method.window_len(cfgs);
     let need = window.unwrap_or(0).max(MIN_TRAIN_STEPS);
     if train.n_steps() < need {
         let why = match window {
@@ -96,59 +61,13 @@ fn check_enough_data(
     Ok(())
 }
 
-/// How the fitted detector is kept in a model directory.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case", tag = "kind", deny_unknown_fields)]
-pub enum Storage {
-    /// A QUADFormer checkpoint (`quadformer_model::checkpoint`).
-    Checkpoint {
-        /// Checkpoint manifest: a plain file name in the model directory.
-        manifest: String,
-        /// Lower-case hex SHA-256 of the checkpoint manifest (which holds the SHA-256 of the
-        /// weights), checked before it is read; absent in directories written before it existed.
-        #[serde(default, skip_serializing_if = "Option::is_none")]
-        manifest_sha256: Option<String>,
-    },
-    /// A copy of the training data; `detect` re-fits the method from it.
-    Refit {
-        /// Training residue files: `data/train/<plain file name>`.
-        train: Vec<String>,
-        /// Validation residue files: `data/valid/<plain file name>`.
-        valid: Vec<String>,
-    },
-}
-
-/// The `model.json` manifest of a model directory (file format, versioned).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ModelManifest {
-    /// Always [`MODEL_FORMAT`].
-    pub format: String,
-    /// [`MODEL_VERSION`] when written.
-    pub version: u32,
-    /// The method.
-    pub method: Method,
-    /// Residue channels the method was trained on, in order.
-    pub channels: Vec<String>,
-    /// Alarm threshold chosen on validation (a step alarms when its score exceeds it).
-    pub threshold: f64,
-    /// Seed of the method's random parts (weights, shuffling, subsampling).
-    pub seed: u64,
-    /// Every method's configuration as used (already seeded).
-    pub configs: MethodConfigs,
-    /// Where the fitted detector is.
-    pub storage: Storage,
-    /// Training and validation flight files the model was fitted on (as given).
-    pub trained_on: Vec<String>,
-}
-
 /// Arguments of `quadformer train`.
 #[derive(Debug, clap::Args)]
 #[command(
-    after_help = "Model directory: QUADFormer is saved as a checkpoint (quadformer.json + quadformer.safetensors). \
-The other methods (cusum, sprt, bht, chi2, px4-gate, svm, cnn, lstm) have no save format: the model directory keeps \
-their configuration and a copy of the training and validation residues, and `quadformer detect` re-fits them from it \
-(deterministic for a given seed). See docs/cli.md and decision 081."
+    after_help = "Model directory: model.json and the fitted state, which `quadformer detect` loads without fitting: \
+detector.json (the fitted parameters of cusum, sprt, bht, chi2, px4-gate and svm; the manifest of cnn and lstm, with \
+detector.safetensors for their weights) or quadformer.json + quadformer.safetensors (the QUADFormer checkpoint). See \
+docs/cli.md and decisions 081 and 110."
 )]
 pub struct Args {
     /// Method: quadformer, cusum, sprt, bht, chi2, px4-gate, svm, cnn or lstm.
@@ -274,14 +193,8 @@ pub fn method_configs(path: Option<&Path>, quick: bool, seed: u64) -> Result<Met
     let cfgs: MethodConfigs =
         merged.try_into().map_err(|e: toml::de::Error| config_err(e.message().trim().to_owned()))?;
     // Sizes are checked against their budgets here, before any data is read.
-    let checks: [(&str, Result<(), String>); 4] = [
-        ("quadformer", cfgs.quadformer.check().map_err(|e| e.to_string())),
-        ("cnn", cfgs.cnn.0.check().map_err(|e| e.to_string())),
-        ("lstm", cfgs.lstm.0.check().map_err(|e| e.to_string())),
-        ("svm", cfgs.svm.check().map_err(|e| e.to_string())),
-    ];
-    for (table, r) in checks {
-        r.map_err(|e| config_err(format!("[{table}]: {e}")))?;
+    for &m in Method::ALL {
+        m.check(&cfgs).map_err(|e| config_err(format!("[{}]: {e}", m.config_key())))?;
     }
     Ok(cfgs.seeded(seed))
 }
@@ -324,51 +237,10 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     };
     let trained_on: Vec<String> = train_files.iter().chain(&valid_files).map(|p| p.display().to_string()).collect();
 
-    let threshold = if method == Method::QuadFormer {
-        let det =
-            cfgs.quadformer.fit(&train, &valid).map_err(|e| fit_err(format!("{}: fit failed: {e}", method.name())))?;
-        let threshold = finite(det.threshold())?;
-        let files = det
-            .encode(&weights_file_name(CHECKPOINT_FILE))
-            .map_err(|e| CliError::Run(format!("{}: {e}", args.out.display())))?;
-        let manifest = manifest(
-            method,
-            &channels,
-            threshold,
-            args.seed,
-            &cfgs,
-            trained_on,
-            Storage::Checkpoint {
-                manifest: CHECKPOINT_FILE.into(),
-                manifest_sha256: Some(sha256_hex(files.manifest.as_bytes())),
-            },
-        );
-        write_dir_atomic(&args.out, overwrite, |dir| {
-            write_bytes_atomic(&dir.join(weights_file_name(CHECKPOINT_FILE)), &files.weights)?;
-            write_text_atomic(&dir.join(CHECKPOINT_FILE), &files.manifest)?;
-            write_manifest(dir, &manifest)
-        })?;
-        threshold
-    } else {
-        let fitted = fit(method, &cfgs, &train, &valid).map_err(|e| fit_err(e.to_string()))?;
-        let threshold = finite(fitted.detector.threshold())?;
-        let rel = |split: &str, files: &[PathBuf]| -> Vec<String> {
-            files.iter().enumerate().map(|(i, p)| recorded_name(split, i, p)).collect()
-        };
-        let storage = Storage::Refit { train: rel("train", &train_files), valid: rel("valid", &valid_files) };
-        let manifest = manifest(method, &channels, threshold, args.seed, &cfgs, trained_on, storage.clone());
-        write_dir_atomic(&args.out, overwrite, |dir| {
-            if let Storage::Refit { train: tn, valid: vn } = &storage {
-                for (names, split) in [(tn, &train), (vn, &valid)] {
-                    for (name, f) in names.iter().zip(split.flights()) {
-                        write_residues(&dir.join(name), f.series(), f.labels(), CovarianceLayout::Upper)?;
-                    }
-                }
-            }
-            write_manifest(dir, &manifest)
-        })?;
-        threshold
-    };
+    let (det, files) = method.fit_and_save(&cfgs, &train, &valid).map_err(|e| fit_err(format!("{}: {e}", method.name())))?;
+    let threshold = finite(det.threshold())?;
+    let trained = Trained { method, channels: channels.clone(), threshold, seed: args.seed, configs: cfgs, trained_on };
+    model_dir::write(&args.out, overwrite, trained, &files)?;
     eprintln!(
         "wrote {}: {} on {} training + {} validation flights ({} + {} steps), channels {}, threshold {threshold:.6}",
         args.out.display(),
@@ -380,159 +252,4 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         channels.join(" ")
     );
     Ok(())
-}
-
-/// Relative path of the recorded copy of input file `i` of `split`: the original file name,
-/// prefixed with its index so names from different directories cannot collide.
-fn recorded_name(split: &str, i: usize, original: &Path) -> String {
-    let name = original.file_name().map_or_else(|| "flight.csv".into(), |n| n.to_string_lossy().into_owned());
-    format!("{DATA_DIR}/{split}/{i:04}-{name}")
-}
-
-fn manifest(
-    method: Method,
-    channels: &[String],
-    threshold: f64,
-    seed: u64,
-    cfgs: &MethodConfigs,
-    trained_on: Vec<String>,
-    storage: Storage,
-) -> ModelManifest {
-    ModelManifest {
-        format: MODEL_FORMAT.into(),
-        version: MODEL_VERSION,
-        method,
-        channels: channels.to_vec(),
-        threshold,
-        seed,
-        configs: cfgs.clone(),
-        storage,
-        trained_on,
-    }
-}
-
-fn write_manifest(dir: &Path, m: &ModelManifest) -> crate::io::Result<()> {
-    let path = dir.join(MODEL_FILE);
-    let json = serde_json::to_string_pretty(m)
-        .map_err(|e| IoError::Inconsistent { path: path.clone(), msg: format!("cannot serialise: {e}") })?;
-    write_text_atomic(&path, &json)
-}
-
-/// Most files a model manifest may list (training plus validation flights).
-pub const MAX_MANIFEST_FILES: usize = 100_000;
-
-/// Lower-case hex SHA-256 of `bytes`.
-#[must_use]
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::Digest as _;
-    sha2::Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
-}
-
-/// Whether `name` is a plain file name: one normal component, no separator.
-#[must_use]
-pub fn is_plain_name(name: &str) -> bool {
-    !name.contains(['/', '\\']) && Path::new(name).file_name().is_some_and(|n| n == name)
-}
-
-/// A JSON error's message without the ` at line L column C` serde_json appends (the caller
-/// reports the position once, itself).
-fn json_message(e: &serde_json::Error) -> String {
-    let msg = e.to_string();
-    match msg.rsplit_once(" at line ") {
-        Some((head, _)) if e.line() > 0 => head.to_owned(),
-        _ => msg,
-    }
-}
-
-/// Checks every field of a parsed manifest (see [`read_manifest`]); the message names the field.
-fn check_fields(m: &ModelManifest) -> Result<(), String> {
-    if m.channels.is_empty() {
-        return Err("channels: empty".into());
-    }
-    if m.channels.len() > nn_toolkit::window::MAX_CHANNELS {
-        return Err(format!(
-            "channels: {} exceed the budget of {}",
-            m.channels.len(),
-            nn_toolkit::window::MAX_CHANNELS
-        ));
-    }
-    for (i, c) in m.channels.iter().enumerate() {
-        if c.is_empty() || c.chars().any(|ch| ch.is_control() || ch == ',') {
-            return Err(format!("channels[{i}]: {c:?} is not a channel name (empty, a control character or `,`)"));
-        }
-        if m.channels[..i].contains(c) {
-            return Err(format!("channels[{i}]: `{c}` is listed twice"));
-        }
-    }
-    if !m.threshold.is_finite() {
-        return Err(format!("threshold: must be finite, got {}", m.threshold));
-    }
-    if m.trained_on.len() > MAX_MANIFEST_FILES {
-        return Err(format!("trained_on: {} entries exceed the budget of {MAX_MANIFEST_FILES}", m.trained_on.len()));
-    }
-    match &m.storage {
-        Storage::Checkpoint { manifest, manifest_sha256 } => {
-            if !is_plain_name(manifest) {
-                return Err(format!("storage.manifest: `{manifest}` must be a plain file name in the model directory"));
-            }
-            if let Some(h) = manifest_sha256
-                && !(h.len() == 64 && h.chars().all(|c| c.is_ascii_digit() || ('a'..='f').contains(&c)))
-            {
-                return Err(format!("storage.manifest_sha256: `{h}` is not a lower-case hex SHA-256"));
-            }
-        }
-        Storage::Refit { train, valid } => {
-            for (split, names) in [("train", train), ("valid", valid)] {
-                if names.is_empty() {
-                    return Err(format!("storage.{split}: no files"));
-                }
-                if names.len() > MAX_MANIFEST_FILES {
-                    return Err(format!(
-                        "storage.{split}: {} files exceed the budget of {MAX_MANIFEST_FILES}",
-                        names.len()
-                    ));
-                }
-                let prefix = format!("{DATA_DIR}/{split}/");
-                for (i, n) in names.iter().enumerate() {
-                    let plain = n.strip_prefix(&prefix).is_some_and(is_plain_name);
-                    if !plain {
-                        return Err(format!("storage.{split}[{i}]: `{n}` must be `{prefix}<plain file name>`"));
-                    }
-                    if names[..i].contains(n) {
-                        return Err(format!("storage.{split}[{i}]: `{n}` is listed twice"));
-                    }
-                }
-            }
-        }
-    }
-    Ok(())
-}
-
-/// Reads and checks the `model.json` of a model directory.
-///
-/// # Errors
-/// [`CliError::Io`] if it cannot be read; [`CliError::Input`] naming the file when it is
-/// malformed (line and column), of another format or version, or inconsistent, or a field is
-/// invalid (named): no channels or a duplicate, a threshold that is not finite, a file name
-/// that is not a plain name inside the model directory, a list over its budget.
-pub fn read_manifest(model_dir: &Path) -> Result<ModelManifest, CliError> {
-    let path = model_dir.join(MODEL_FILE);
-    let bad = |msg: String| CliError::Input { path: path.clone(), msg };
-    let text = crate::io::read_text(&path)?;
-    let m: ModelManifest = serde_json::from_str(&text).map_err(|e| {
-        bad(format!("malformed model manifest at line {}, column {}: {}", e.line(), e.column(), json_message(&e)))
-    })?;
-    if m.format != MODEL_FORMAT {
-        return Err(bad(format!("format is `{}`, expected `{MODEL_FORMAT}`", m.format)));
-    }
-    if m.version != MODEL_VERSION {
-        return Err(bad(format!("version {} is not supported (this build reads {MODEL_VERSION})", m.version)));
-    }
-    check_fields(&m).map_err(bad)?;
-    let storage_ok =
-        matches!((&m.storage, m.method), (Storage::Checkpoint { .. }, Method::QuadFormer) | (Storage::Refit { .. }, _));
-    if !storage_ok {
-        return Err(bad(format!("{} cannot be stored as {:?}", m.method.name(), m.storage)));
-    }
-    Ok(m)
 }
