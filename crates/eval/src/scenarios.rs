@@ -1,6 +1,12 @@
-//! Tables and top-view plots of the paper's closed-loop flight scenarios (fig:simu1 eight,
-//! fig:simu2 UST, fig:simu3 formation, fig:real1 diagonal, fig:real2 square; alg:alg3), from the
-//! results of [`resilient_fusion::scenario::run_case`].
+//! The paper's closed-loop flight scenarios (fig:simu1 eight, fig:simu2 UST, fig:simu3
+//! formation, fig:real1 diagonal, fig:real2 square; alg:alg3) flown with detectors, and their
+//! tables and top-view plots.
+//!
+//! [`fly_all`] flies every scenario in its three cases through
+//! [`resilient_fusion::scenario::run_case`], the detected case once per [`FusionDetector`] and
+//! decision latency. A detector is resilient-fusion's NIS gate or a batch detector run online:
+//! loaded from a model directory, or fitted by [`fit_on_quick_cell`] on the quick dataset cell
+//! `m2-gaussian-a2` restricted to the GPS channels (decision 090).
 //!
 //! One [`ScenarioRow`] per scenario × case × vehicle (× detector × decision latency), written as
 //! CSV ([`write_csv`]) and as a Markdown table of the attacked vehicles with the tracking RMSE
@@ -10,10 +16,172 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use resilient_fusion::scenario::{Case, CaseResult, Scenario};
+use attack_inject::AttackKind;
+use ekf_residue::Detector;
+use ekf_residue::detector::OnlineDetector;
+use ekf_residue::residues::{GPS_CHANNELS, ModelKind};
+use resilient_fusion::estimator::NisGate;
+use resilient_fusion::scenario::{Case, CaseResult, Scenario, ScenarioConfig, run_case};
+use uav_dynamics::noise::NoiseShape;
 
+use crate::dataset::{DatasetConfig, load_or_build};
 use crate::io::{IoError, write_text_atomic};
+use crate::methods::{Method, MethodConfigs};
 use crate::plot::{PlotError, TopView, top_view_plot};
+use crate::runner::fit;
+
+/// Errors of flying the scenarios.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    /// A flight failed.
+    #[error("{scenario} {case}: {source}")]
+    Flight {
+        /// The scenario.
+        scenario: &'static str,
+        /// The case.
+        case: &'static str,
+        /// The fusion's error.
+        source: resilient_fusion::FusionError,
+    },
+    /// A plot of a flight failed.
+    #[error("{scenario} {case}: {source}")]
+    Plot {
+        /// The scenario.
+        scenario: &'static str,
+        /// The case.
+        case: &'static str,
+        /// The plot error.
+        source: PlotError,
+    },
+    /// Building the quick cell or fitting the detector on it failed.
+    #[error("dataset {cell}, GPS channels: {msg}")]
+    Fit {
+        /// The dataset cell.
+        cell: String,
+        /// What failed.
+        msg: String,
+    },
+}
+
+/// A detector ready for the scenarios: the NIS gate, or a fitted / loaded batch detector.
+pub enum FusionDetector {
+    /// resilient-fusion's χ²₃ NIS gate at the 0.999 quantile.
+    Nis,
+    /// A batch detector run online.
+    Batch(Box<dyn Detector>),
+}
+
+impl std::fmt::Debug for FusionDetector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Nis => f.write_str("Nis"),
+            Self::Batch(d) => write!(f, "Batch({})", d.name()),
+        }
+    }
+}
+
+impl FusionDetector {
+    /// Channels the detector reads (the fusion's `detector_channels`).
+    #[must_use]
+    pub fn channels(&self) -> Vec<String> {
+        match self {
+            Self::Nis => GPS_CHANNELS.iter().map(|s| (*s).to_owned()).collect(),
+            Self::Batch(d) => d.channels().to_vec(),
+        }
+    }
+
+    /// A fresh online detector for one flight.
+    ///
+    /// # Errors
+    /// The gate's error when its threshold is invalid.
+    pub fn online(&self) -> resilient_fusion::Result<Box<dyn OnlineDetector + '_>> {
+        match self {
+            Self::Nis => Ok(Box::new(NisGate::new(NisGate::CHI2_3_999)?)),
+            Self::Batch(d) => Ok(d.online()),
+        }
+    }
+}
+
+/// Fits `method` (with the `--quick` configurations, seeded by `seed`) on the quick dataset
+/// cell `m2-gaussian-a2` restricted to `gps_x gps_y gps_z`, its threshold chosen on the cell's
+/// validation split; the dataset is cached under `cache`.
+///
+/// # Errors
+/// [`ScenarioError::Fit`] naming the cell when the dataset or the fit fails.
+pub fn fit_on_quick_cell(method: Method, seed: u64, cache: &Path) -> Result<Box<dyn Detector>, ScenarioError> {
+    let cfg = DatasetConfig { seed, ..DatasetConfig::quick(ModelKind::ModelII, NoiseShape::Gaussian, AttackKind::Persistent) };
+    let cell = cfg.cell_name();
+    let err = |msg: String| ScenarioError::Fit { cell: cell.clone(), msg };
+    let valid_cfg = cfg.check().map_err(|e| err(e.to_string()))?;
+    let (data, outcome) = load_or_build(&valid_cfg, cache).map_err(|e| err(e.to_string()))?;
+    eprintln!("dataset {cell}: {outcome:?}");
+    let (train, valid) = (data.train().map_err(|e| err(e.to_string()))?, data.valid().map_err(|e| err(e.to_string()))?);
+    let (train, valid) = (
+        train.select_channels(&GPS_CHANNELS).map_err(|e| err(e.to_string()))?,
+        valid.select_channels(&GPS_CHANNELS).map_err(|e| err(e.to_string()))?,
+    );
+    let fitted = fit(method, &MethodConfigs::quick().seeded(seed), &train, &valid).map_err(|e| err(e.to_string()))?;
+    eprintln!(
+        "fitted {} on {cell} (gps_x gps_y gps_z) in {:.1} s, streaming threshold {:.4}",
+        method.name(),
+        fitted.train_s,
+        fitted.detector.streaming_threshold()
+    );
+    Ok(fitted.detector)
+}
+
+/// Flies `scenarios` with every `(label, detector)` at every latency; the no-attack and
+/// undetected cases once per scenario. Plots go to `plot_dir`.
+///
+/// # Errors
+/// [`ScenarioError`] naming the scenario and case when a flight or its plot fails.
+pub fn fly_all(
+    scenarios: &[Scenario],
+    detectors: &[(&str, &FusionDetector)],
+    latencies: &[f64],
+    seed: u64,
+    plot_dir: &Path,
+) -> Result<Vec<ScenarioRow>, ScenarioError> {
+    let mut all = Vec::new();
+    for &sc in scenarios {
+        let flight = |case: Case| move |source| ScenarioError::Flight { scenario: sc.name(), case: case.name(), source };
+        let plot = |case: Case| move |source| ScenarioError::Plot { scenario: sc.name(), case: case.name(), source };
+        let base = ScenarioConfig { seed, ..ScenarioConfig::default() };
+        for case in [Case::NoAttack, Case::AttackUndetected] {
+            let r = run_case(sc, case, &base, None).map_err(flight(case))?;
+            all.extend(rows(&r, "none", base.resilient.latency_s));
+            plot_case(plot_dir, &r, "none", base.resilient.latency_s).map_err(plot(case))?;
+        }
+        for &(label, det) in detectors {
+            for &latency_s in latencies {
+                let mut cfg = base.clone();
+                cfg.resilient.latency_s = latency_s;
+                cfg.resilient.detector_channels = det.channels();
+                let case = Case::AttackDetected;
+                let make = |_: usize| det.online();
+                let r = run_case(sc, case, &cfg, Some(&make)).map_err(flight(case))?;
+                eprintln!("{} {} ({label}, latency {latency_s} s) done", sc.name(), case.name());
+                all.extend(rows(&r, label, latency_s));
+                plot_case(plot_dir, &r, label, latency_s).map_err(plot(case))?;
+            }
+        }
+    }
+    Ok(all)
+}
+
+/// Writes `scenarios.csv` and `scenarios.md` (with `heading` above the table) into `out`.
+///
+/// # Errors
+/// [`IoError`] naming the file.
+pub fn write_tables(out: &Path, heading: &str, all: &[ScenarioRow]) -> Result<(), IoError> {
+    write_csv(&out.join("scenarios.csv"), all)?;
+    let md = format!(
+        "{heading}\n\nAttacked vehicle of every case (all vehicles in scenarios.csv); \"× no attack\" is the \
+         tracking RMSE over the no-attack case's. Plots: plots/.\n\n{}",
+        markdown(all)
+    );
+    write_text_atomic(&out.join("scenarios.md"), &md)
+}
 
 /// One vehicle of one case of one scenario, with the detector and latency it ran with.
 #[derive(Debug, Clone, PartialEq)]

@@ -11,33 +11,26 @@
 //! metrics) say what it did.
 //!
 //! Detectors (decision 090): `nis` is resilient-fusion's χ²₃ NIS gate on the GPS innovation
-//! (no fitting); `chi2`, `cusum` and `quadformer` are fitted with [`crate::runner::fit`]
-//! (thresholds chosen on validation) on the quick dataset cell `m2-gaussian-a2`
-//! restricted to the GPS channels `gps_x gps_y gps_z`, with the `--quick` method configurations,
-//! or loaded from a model directory (`--model`, written by `quadformer train`), whose training
-//! channels become the fusion's detector channels. Batch detectors run through
-//! [`ekf_residue::Detector::online`]; resilient-fusion stays candle-free.
+//! (no fitting); `chi2`, `cusum` and `quadformer` are fitted by
+//! [`crate::scenarios::fit_on_quick_cell`] or loaded from a model directory (`--model`, written
+//! by `quadformer train`), whose training channels become the fusion's detector channels. Batch
+//! detectors run through [`ekf_residue::Detector::online`]; resilient-fusion stays candle-free.
+//! The flying itself is [`crate::scenarios::fly_all`]; this module maps flags to it.
 
 use std::path::{Path, PathBuf};
 
-use attack_inject::AttackKind;
-use ekf_residue::Detector;
-use ekf_residue::detector::OnlineDetector;
-use ekf_residue::residues::{GPS_CHANNELS, ModelKind};
-use resilient_fusion::estimator::{NisGate, ResilientConfig};
+use ekf_residue::residues::ModelKind;
+use resilient_fusion::estimator::ResilientConfig;
 use resilient_fusion::recorded::fly_recorded;
-use resilient_fusion::scenario::{Case, Scenario, ScenarioConfig, run_case};
-use uav_dynamics::noise::NoiseShape;
+use resilient_fusion::scenario::Scenario;
 
 use crate::cli::CliError;
 use crate::cli::residues::{ModelArg, flight_filter};
-use crate::model_dir;
 use crate::closed_loop::{flight_from_dir, loop_metrics};
-use crate::dataset::{DatasetConfig, load_or_build};
 use crate::io::{Input, Output, check_outputs, write_into_dir_atomic, write_text_atomic};
-use crate::methods::{Method, MethodConfigs};
-use crate::runner::fit;
-use crate::scenarios::{ScenarioRow, markdown, plot_case, rows, write_csv};
+use crate::methods::Method;
+use crate::model_dir;
+use crate::scenarios::{FusionDetector, ScenarioRow, fit_on_quick_cell, fly_all, write_tables};
 
 /// Scenario selection of `--scenario`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -159,34 +152,6 @@ pub struct Args {
     pub out: PathBuf,
 }
 
-/// A detector ready for the scenarios: the NIS gate, or a fitted / loaded batch detector.
-pub enum FusionDetector {
-    /// resilient-fusion's NIS gate.
-    Nis,
-    /// A batch detector run online.
-    Batch(Box<dyn Detector>),
-}
-
-impl std::fmt::Debug for FusionDetector {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Nis => f.write_str("Nis"),
-            Self::Batch(d) => write!(f, "Batch({})", d.name()),
-        }
-    }
-}
-
-impl FusionDetector {
-    /// Channels the detector reads (the fusion's `detector_channels`).
-    #[must_use]
-    pub fn channels(&self) -> Vec<String> {
-        match self {
-            Self::Nis => GPS_CHANNELS.iter().map(|s| (*s).to_owned()).collect(),
-            Self::Batch(d) => d.channels().to_vec(),
-        }
-    }
-}
-
 /// Builds the detector of `which`: the NIS gate, a model directory, or a fit on the quick cell.
 ///
 /// # Errors
@@ -214,94 +179,7 @@ pub fn make_detector(
         }
         return Ok(FusionDetector::Batch(model_dir::load(dir, &manifest)?));
     }
-    let cfg = DatasetConfig {
-        seed,
-        ..DatasetConfig::quick(ModelKind::ModelII, NoiseShape::Gaussian, AttackKind::Persistent)
-    };
-    let cell = cfg.cell_name();
-    let valid_cfg = cfg.check().map_err(|e| CliError::Run(format!("dataset {cell}: {e}")))?;
-    let (data, outcome) =
-        load_or_build(&valid_cfg, cache).map_err(|e| CliError::Run(format!("dataset {cell}: {e}")))?;
-    eprintln!("dataset {cell}: {outcome:?}");
-    let run = |e: &dyn std::fmt::Display| CliError::Run(format!("dataset {cell}, GPS channels: {e}"));
-    let (train, valid) = (data.train().map_err(|e| run(&e))?, data.valid().map_err(|e| run(&e))?);
-    let (train, valid) = (
-        train.select_channels(&GPS_CHANNELS).map_err(|e| run(&e))?,
-        valid.select_channels(&GPS_CHANNELS).map_err(|e| run(&e))?,
-    );
-    let cfgs = MethodConfigs::quick().seeded(seed);
-    let fitted = fit(method, &cfgs, &train, &valid).map_err(|e| run(&e))?;
-    eprintln!(
-        "fitted {} on {cell} (gps_x gps_y gps_z) in {:.1} s, streaming threshold {:.4}",
-        method.name(),
-        fitted.train_s,
-        fitted.detector.streaming_threshold()
-    );
-    Ok(FusionDetector::Batch(fitted.detector))
-}
-
-/// Flies `scenarios` with every `(label, detector)` at every latency; the no-attack and
-/// undetected cases once per scenario. Plots go to `plot_dir`.
-///
-/// # Errors
-/// [`CliError::Run`] naming the scenario and case when a flight fails; plot errors.
-pub fn fly_all(
-    scenarios: &[Scenario],
-    detectors: &[(&str, &FusionDetector)],
-    latencies: &[f64],
-    seed: u64,
-    plot_dir: &Path,
-) -> Result<Vec<ScenarioRow>, CliError> {
-    let mut all = Vec::new();
-    for &sc in scenarios {
-        let fail = |case: Case, e: &dyn std::fmt::Display| CliError::Run(format!("{} {}: {e}", sc.name(), case.name()));
-        let base = ScenarioConfig { seed, ..ScenarioConfig::default() };
-        for case in [Case::NoAttack, Case::AttackUndetected] {
-            let r = run_case(sc, case, &base, None).map_err(|e| fail(case, &e))?;
-            all.extend(rows(&r, "none", base.resilient.latency_s));
-            plot_case(plot_dir, &r, "none", base.resilient.latency_s).map_err(|e| fail(case, &e))?;
-        }
-        for &(label, det) in detectors {
-            for &latency_s in latencies {
-                let mut cfg = base.clone();
-                cfg.resilient.latency_s = latency_s;
-                cfg.resilient.detector_channels = det.channels();
-                let case = Case::AttackDetected;
-                let r = match det {
-                    FusionDetector::Nis => {
-                        let f = |_: usize| -> resilient_fusion::Result<Box<dyn OnlineDetector>> {
-                            Ok(Box::new(NisGate::new(NisGate::CHI2_3_999)?))
-                        };
-                        run_case(sc, case, &cfg, Some(&f))
-                    }
-                    FusionDetector::Batch(d) => {
-                        let f = |_: usize| -> resilient_fusion::Result<Box<dyn OnlineDetector + '_>> { Ok(d.online()) };
-                        run_case(sc, case, &cfg, Some(&f))
-                    }
-                }
-                .map_err(|e| fail(case, &e))?;
-                eprintln!("{} {} ({label}, latency {latency_s} s) done", sc.name(), case.name());
-                all.extend(rows(&r, label, latency_s));
-                plot_case(plot_dir, &r, label, latency_s).map_err(|e| fail(case, &e))?;
-            }
-        }
-    }
-    Ok(all)
-}
-
-/// Writes `scenarios.csv` and `scenarios.md` (with `heading` above the table) into `out`.
-///
-/// # Errors
-/// [`CliError::Io`] naming the file.
-pub fn write_tables(out: &Path, heading: &str, all: &[ScenarioRow]) -> Result<(), CliError> {
-    write_csv(&out.join("scenarios.csv"), all)?;
-    let md = format!(
-        "{heading}\n\nAttacked vehicle of every case (all vehicles in scenarios.csv); \"× no attack\" is the \
-         tracking RMSE over the no-attack case's. Plots: plots/.\n\n{}",
-        markdown(all)
-    );
-    write_text_atomic(&out.join("scenarios.md"), &md)?;
-    Ok(())
+    Ok(FusionDetector::Batch(fit_on_quick_cell(method, seed, cache)?))
 }
 
 /// Checks `--latency-s`.
@@ -340,7 +218,7 @@ pub(crate) fn fly_and_write(
     let mut all = Vec::new();
     write_into_dir_atomic(out, |tmp| -> Result<(), CliError> {
         all = fly_all(scenarios, detectors, latencies, seed, &tmp.join("plots"))?;
-        write_tables(tmp, &heading(), &all)
+        Ok(write_tables(tmp, &heading(), &all)?)
     })?;
     Ok(all)
 }
@@ -409,10 +287,7 @@ fn fly_folder(args: &Args, dir: &Path, det: &FusionDetector) -> Result<(), CliEr
     let (flight, attack) = flight_from_dir(&folder);
     let mut cfg = ResilientConfig { latency_s: args.latency_s, ..ResilientConfig::default() };
     cfg.detector_channels = det.channels();
-    let online: Box<dyn OnlineDetector + '_> = match det {
-        FusionDetector::Nis => Box::new(NisGate::new(NisGate::CHI2_3_999).map_err(|e| CliError::Run(e.to_string()))?),
-        FusionDetector::Batch(d) => d.online(),
-    };
+    let online = det.online().map_err(|e| CliError::Run(e.to_string()))?;
     let trace = fly_recorded(&flight, &attack, &filter, &cfg, Some(online))
         .map_err(|e| CliError::Filter { path: dir.to_owned(), msg: e.to_string() })?;
     let rows: Vec<LoopRow> = trace

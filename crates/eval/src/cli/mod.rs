@@ -141,6 +141,12 @@ impl From<crate::model_dir::ModelDirError> for CliError {
     }
 }
 
+impl From<crate::scenarios::ScenarioError> for CliError {
+    fn from(e: crate::scenarios::ScenarioError) -> Self {
+        Self::Run(e.to_string())
+    }
+}
+
 /// Errors of the command-line subcommands; each names the file or field concerned.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
