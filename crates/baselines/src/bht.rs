@@ -51,6 +51,10 @@ impl Default for BhtConfig {
     }
 }
 
+/// Largest sample size `N` of the test (a fitted state or a grid entry): 10,000 residues,
+/// 1,000 s at the 10 Hz GPS rate.
+pub const MAX_BHT_SAMPLES: usize = 10_000;
+
 /// A fitted BHT detector.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -74,8 +78,8 @@ impl crate::JsonState for Bht {
         check_finite("mu", &self.mu)?;
         check_finite("whiten", &self.whiten)?;
         check_finite("gamma", &[self.gamma])?;
-        if self.n_samples == 0 {
-            return Err(state_err("n_samples: must be at least 1".into()));
+        if self.n_samples == 0 || self.n_samples > MAX_BHT_SAMPLES {
+            return Err(state_err(format!("n_samples: {} is not in 1..={MAX_BHT_SAMPLES}", self.n_samples)));
         }
         Ok(())
     }
@@ -161,6 +165,12 @@ impl Fit for BhtConfig {
     fn fit(&self, train: &LabelledResidues, valid: &LabelledResidues) -> Result<Bht> {
         if self.n_samples == 0 || self.n_grid.is_empty() || self.n_grid.contains(&0) {
             return Err(BaselineError::Config { field: "n_grid", msg: "sample sizes must be positive".into() });
+        }
+        if self.n_samples > MAX_BHT_SAMPLES || self.n_grid.iter().any(|&n| n > MAX_BHT_SAMPLES) {
+            return Err(BaselineError::Config {
+                field: "n_grid",
+                msg: format!("sample sizes must be at most {MAX_BHT_SAMPLES}"),
+            });
         }
         if !(self.far > 0.0 && self.far < 1.0) {
             return Err(BaselineError::Config { field: "far", msg: format!("must lie in (0, 1), got {}", self.far) });

@@ -28,12 +28,12 @@
 //! bit for bit what the fitted one scored.
 
 use candle_core::{D, DType, Device, Module, Tensor};
-use sha2::{Digest, Sha256};
 use candle_nn::{Conv1d, Conv1dConfig, Linear, VarBuilder, VarMap};
 use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
 use nn_toolkit::loss::masked_bce_with_logits;
 use nn_toolkit::{Batch, Normaliser, TrainConfig, TrainableModel, WindowConfig, Windows, init_vars_seeded, train};
 use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
 
 use crate::common::{fit_channels, labelled_valid};
 use crate::error::{BaselineError, Result};
@@ -502,12 +502,10 @@ impl<N: PerStepNet> NeuralDetector<N> {
     /// # Errors
     /// [`BaselineError::State`] if the weights or the manifest cannot be encoded.
     pub fn encode(&self) -> Result<NeuralFiles> {
+        crate::state::check_finite("threshold, stream_threshold", &[self.threshold, self.stream_threshold])?;
         let weights = {
-            let data = self
-                ._varmap
-                .data()
-                .lock()
-                .map_err(|_| crate::state::state_err("variable map lock poisoned".into()))?;
+            let data =
+                self._varmap.data().lock().map_err(|_| crate::state::state_err("variable map lock poisoned".into()))?;
             let tensors: Vec<(String, Tensor)> = data.iter().map(|(k, v)| (k.clone(), v.as_tensor().clone())).collect();
             safetensors::tensor::serialize(tensors, None)
                 .map_err(|e| crate::state::state_err(format!("cannot encode the weights: {e}")))?
@@ -539,8 +537,8 @@ fn decode_neural<N: PerStepNet>(
     build: impl FnOnce(usize, &NeuralConfig, VarBuilder) -> candle_core::Result<N>,
 ) -> Result<NeuralDetector<N>> {
     use crate::state::{check_channels, check_finite, state_err};
-    let m: NeuralManifest = serde_json::from_str(manifest)
-        .map_err(|e| state_err(format!("malformed manifest at line {}, column {}: {e}", e.line(), e.column())))?;
+    let m: NeuralManifest =
+        serde_json::from_str(manifest).map_err(|e| state_err(crate::state::malformed("manifest ", &e)))?;
     if m.format != NEURAL_FORMAT || m.version != NEURAL_VERSION {
         return Err(state_err(format!(
             "format `{}` version {}, this build reads `{NEURAL_FORMAT}` version {NEURAL_VERSION}",

@@ -83,9 +83,10 @@ pub struct Sprt {
 impl crate::JsonState for Sprt {
     fn check_state(&self) -> Result<()> {
         crate::state::check_channels(&self.channels)?;
-        crate::state::check_finite("delta, alpha, beta, upper, lower", &[
-            self.delta, self.alpha, self.beta, self.upper, self.lower,
-        ])
+        crate::state::check_finite(
+            "delta, alpha, beta, upper, lower",
+            &[self.delta, self.alpha, self.beta, self.upper, self.lower],
+        )
     }
 }
 

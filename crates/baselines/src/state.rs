@@ -20,11 +20,13 @@ pub trait JsonState: Serialize + DeserializeOwned {
     /// [`BaselineError::State`] naming the field.
     fn check_state(&self) -> Result<()>;
 
-    /// The state as pretty JSON.
+    /// The state as pretty JSON, after [`JsonState::check_state`] (so a state that would not
+    /// load, e.g. a non-finite threshold written as `null`, is never written).
     ///
     /// # Errors
-    /// [`BaselineError::State`] if serialising fails.
+    /// [`BaselineError::State`] naming the inconsistent field, or if serialising fails.
     fn to_json(&self) -> Result<String> {
+        self.check_state()?;
         serde_json::to_string_pretty(self).map_err(|e| state_err(format!("cannot serialise: {e}")))
     }
 
@@ -34,8 +36,7 @@ pub trait JsonState: Serialize + DeserializeOwned {
     /// [`BaselineError::State`] with line and column for malformed JSON or naming the
     /// inconsistent field.
     fn from_json(text: &str) -> Result<Self> {
-        let s: Self = serde_json::from_str(text)
-            .map_err(|e| state_err(format!("malformed at line {}, column {}: {e}", e.line(), e.column())))?;
+        let s: Self = serde_json::from_str(text).map_err(|e| state_err(malformed("", &e)))?;
         s.check_state()?;
         Ok(s)
     }
@@ -51,12 +52,30 @@ pub(crate) fn check_channels(channels: &[String]) -> Result<()> {
     if channels.is_empty() {
         return Err(state_err("channels: empty".into()));
     }
+    if channels.len() > nn_toolkit::window::MAX_CHANNELS {
+        return Err(state_err(format!(
+            "channels: {} exceed the budget of {}",
+            channels.len(),
+            nn_toolkit::window::MAX_CHANNELS
+        )));
+    }
     for (i, c) in channels.iter().enumerate() {
         if c.is_empty() || channels[..i].contains(c) {
             return Err(state_err(format!("channels[{i}]: `{c}` is empty or repeated")));
         }
     }
     Ok(())
+}
+
+/// `malformed {what}at line L, column C: message`, the position said once (serde_json's
+/// message repeats it at its end).
+pub(crate) fn malformed(what: &str, e: &serde_json::Error) -> String {
+    let msg = e.to_string();
+    let msg = match msg.rsplit_once(" at line ") {
+        Some((head, _)) if e.line() > 0 => head.to_owned(),
+        _ => msg,
+    };
+    format!("malformed {what}at line {}, column {}: {msg}", e.line(), e.column())
 }
 
 /// Checks that every value is finite.

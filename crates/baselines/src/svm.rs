@@ -91,8 +91,8 @@ impl crate::JsonState for Svm {
     fn check_state(&self) -> Result<()> {
         use crate::state::{check_channels, check_finite, check_len, state_err};
         check_channels(&self.channels)?;
-        if self.window == 0 {
-            return Err(state_err("window: must be at least 1".into()));
+        if self.window == 0 || self.window > MAX_SVM_WINDOW {
+            return Err(state_err(format!("window: {} is not in 1..={MAX_SVM_WINDOW}", self.window)));
         }
         let d = n_features(self.channels.len());
         check_len("feat_mean", self.feat_mean.len(), d)?;

@@ -3,11 +3,12 @@
 //! rows), in table order (docs/decisions/110-method-registry.md).
 //!
 //! An entry is one [`MethodSpec`] implementation on the method's configuration type, written
-//! inside the [`registry!`] invocation below: its command-line name, table name and row group,
+//! inside the `registry!` invocation below: its command-line name, table name and row group,
 //! its configuration field, the `--quick` and seeded variants of that configuration, its
 //! window, and how its fitted state is saved and loaded. The macro derives from the list
-//! the [`Method`] enum, [`Method::ALL`], the [`MethodConfigs`] struct (one field per method,
-//! the `[methods.<field>]` table of a TOML file) and every dispatch from a [`Method`] to its
+//! the [`Method`] enum, [`Method::ALL`], the [`MethodConfigs`] struct (one field per method:
+//! the `[<field>]` table of a `train --config` file, `[methods.<field>]` in a
+//! `reproduce-tables --config` file) and every dispatch from a [`Method`] to its
 //! entry, so adding a detector is adding one entry.
 
 use baselines::JsonState;
@@ -80,7 +81,8 @@ pub trait MethodSpec:
 {
     /// Command-line and file-name form, e.g. `px4-gate`.
     const SLUG: &'static str;
-    /// Table name, as the fitted detector's `Detector::name` returns it.
+    /// Table name (what the fitted detector's `Detector::name` returns under the default tuning;
+    /// a textbook-tuned variant names its tuning too, but its rows carry this name).
     const NAME: &'static str;
     /// Row group in Tables I and II.
     const GROUP: MethodGroup;
@@ -274,7 +276,8 @@ fn load_neural<D>(
 ) -> Result<D, ModelDirError> {
     let manifest = state.read_text(JSON_STATE_FILE)?;
     let weights = state.read(NEURAL_WEIGHTS_FILE)?;
-    decode(&manifest, &weights).map_err(|e| ModelDirError::Invalid { path: state.path(JSON_STATE_FILE), msg: e.to_string() })
+    decode(&manifest, &weights)
+        .map_err(|e| ModelDirError::Invalid { path: state.path(JSON_STATE_FILE), msg: e.to_string() })
 }
 
 registry! {

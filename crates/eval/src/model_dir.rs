@@ -167,10 +167,8 @@ pub fn write(out: &Path, overwrite: Overwrite, trained: Trained, files: &[StateF
         state: files.iter().map(|f| StateEntry { file: f.name.clone(), sha256: Some(sha256_hex(&f.bytes)) }).collect(),
         trained_on: trained.trained_on,
     };
-    let json = serde_json::to_string_pretty(&manifest).map_err(|e| ModelDirError::Invalid {
-        path: manifest_path.clone(),
-        msg: format!("cannot serialise: {e}"),
-    })?;
+    let json = serde_json::to_string_pretty(&manifest)
+        .map_err(|e| ModelDirError::Invalid { path: manifest_path.clone(), msg: format!("cannot serialise: {e}") })?;
     write_dir_atomic(out, overwrite, |dir| -> Result<()> {
         for f in files {
             write_bytes_atomic(&dir.join(&f.name), &f.bytes)?;
@@ -226,7 +224,8 @@ impl<'a> SavedState<'a> {
         };
         let path = self.dir.join(name);
         let fs = |source| IoError::Fs { path: path.clone(), op: "read", source };
-        let file = std::fs::File::open(&path).map_err(fs)?;
+        // A regular file within the budget (a device or FIFO is refused before reading).
+        let file = crate::io::open_input(&path, MAX_STATE_BYTES)?;
         let mut bytes = Vec::new();
         file.take(MAX_STATE_BYTES + 1).read_to_end(&mut bytes).map_err(fs)?;
         if bytes.len() as u64 > MAX_STATE_BYTES {
@@ -326,6 +325,7 @@ struct Header {
 struct ManifestV1 {
     format: String,
     version: u32,
+    #[serde(deserialize_with = "method_v1")]
     method: Method,
     channels: Vec<String>,
     threshold: f64,
@@ -333,6 +333,15 @@ struct ManifestV1 {
     configs: MethodConfigs,
     storage: StorageV1,
     trained_on: Vec<String>,
+}
+
+/// A method as version 1 wrote it: the slug, except `quad-former` for QUADFormer.
+fn method_v1<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Method, D::Error> {
+    let s = String::deserialize(d)?;
+    if s == "quad-former" {
+        return Ok(Method::QuadFormer);
+    }
+    s.parse().map_err(serde::de::Error::custom)
 }
 
 /// How version 1 kept the fitted detector.
@@ -374,10 +383,21 @@ pub fn read_manifest(model_dir: &Path) -> Result<ModelManifest> {
         1 => {
             let v1: ManifestV1 = serde_json::from_str(&text).map_err(malformed)?;
             let state = match v1.storage {
+                StorageV1::Checkpoint { manifest, .. }
+                    if v1.method == Method::QuadFormer && manifest != crate::methods::CHECKPOINT_FILE =>
+                {
+                    return Err(bad(format!(
+                        "storage.manifest: `{manifest}`, this build reads the checkpoint `{}`",
+                        crate::methods::CHECKPOINT_FILE
+                    )));
+                }
                 StorageV1::Checkpoint { manifest, manifest_sha256 } if v1.method == Method::QuadFormer => {
                     let weights = quadformer_model::checkpoint::weights_file_name(&manifest);
                     // The checkpoint manifest carries the size and SHA-256 of its weights.
-                    vec![StateEntry { file: manifest, sha256: manifest_sha256 }, StateEntry { file: weights, sha256: None }]
+                    vec![
+                        StateEntry { file: manifest, sha256: manifest_sha256 },
+                        StateEntry { file: weights, sha256: None },
+                    ]
                 }
                 StorageV1::Checkpoint { .. } => {
                     return Err(bad(format!("{} cannot be stored as a QUADFormer checkpoint", v1.method.name())));
@@ -408,10 +428,20 @@ pub fn read_manifest(model_dir: &Path) -> Result<ModelManifest> {
     Ok(m)
 }
 
-/// Loads the fitted detector of a model directory whose manifest is `m` (never fits).
+/// Loads the fitted detector of a model directory whose manifest is `m` (never fits); the
+/// decoded detector must read the manifest's channels and alarm above its threshold.
 ///
 /// # Errors
-/// As [`SavedState::read`] and the method's decoder, naming the file.
+/// As [`SavedState::read`] and the method's decoder, naming the file;
+/// [`ModelDirError::Invalid`] naming `model.json` when the state disagrees with it.
 pub fn load(model_dir: &Path, m: &ModelManifest) -> Result<Box<dyn Detector>> {
-    m.method.load(&SavedState::new(model_dir, m))
+    let det = m.method.load(&SavedState::new(model_dir, m))?;
+    let bad = |msg: String| ModelDirError::Invalid { path: model_dir.join(MODEL_FILE), msg };
+    if det.channels() != m.channels.as_slice() {
+        return Err(bad(format!("channels: {:?}, but the saved state reads {:?}", m.channels, det.channels())));
+    }
+    if det.threshold().to_bits() != m.threshold.to_bits() {
+        return Err(bad(format!("threshold: {}, but the saved state alarms above {}", m.threshold, det.threshold())));
+    }
+    Ok(det)
 }

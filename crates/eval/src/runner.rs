@@ -1,5 +1,6 @@
 //! The experiment matrix runner: fits every method of Tables I and II on a cell's training and
-//! validation splits, scores the test split, and turns the outcome into a [`RunResult`].
+//! validation splits, scores the test split, and turns the outcome into a
+//! [`crate::table::ResultRow`] with its timings ([`RunRecord`]).
 //!
 //! Protocol (docs/decisions/001-validation-split-labels.md): each method's thresholds and
 //! hyper-parameters are chosen inside its [`Fit::fit`] on the validation split; the test split is scored once,

@@ -109,7 +109,10 @@ impl FusionDetector {
 /// # Errors
 /// [`ScenarioError::Fit`] naming the cell when the dataset or the fit fails.
 pub fn fit_on_quick_cell(method: Method, seed: u64, cache: &Path) -> Result<Box<dyn Detector>, ScenarioError> {
-    let cfg = DatasetConfig { seed, ..DatasetConfig::quick(ModelKind::ModelII, NoiseShape::Gaussian, AttackKind::Persistent) };
+    let cfg = DatasetConfig {
+        seed,
+        ..DatasetConfig::quick(ModelKind::ModelII, NoiseShape::Gaussian, AttackKind::Persistent)
+    };
     let cell = cfg.cell_name();
     let err = |msg: String| ScenarioError::Fit { cell: cell.clone(), msg };
     let valid_cfg = cfg.check().map_err(|e| err(e.to_string()))?;
@@ -144,7 +147,8 @@ pub fn fly_all(
 ) -> Result<Vec<ScenarioRow>, ScenarioError> {
     let mut all = Vec::new();
     for &sc in scenarios {
-        let flight = |case: Case| move |source| ScenarioError::Flight { scenario: sc.name(), case: case.name(), source };
+        let flight =
+            |case: Case| move |source| ScenarioError::Flight { scenario: sc.name(), case: case.name(), source };
         let plot = |case: Case| move |source| ScenarioError::Plot { scenario: sc.name(), case: case.name(), source };
         let base = ScenarioConfig { seed, ..ScenarioConfig::default() };
         for case in [Case::NoAttack, Case::AttackUndetected] {

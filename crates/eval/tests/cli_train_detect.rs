@@ -225,7 +225,8 @@ fn saved_statistical_method_round_trip_is_deterministic_and_finds_attacks() {
     let tmp = tempfile::tempdir().unwrap();
     let ds = dataset(tmp.path());
     let model = train(tmp.path(), &ds, "cusum");
-    let names: Vec<String> = files(&model).iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
+    let names: Vec<String> =
+        files(&model).iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
     assert_eq!(names, ["detector.json", "model.json"], "the fitted state, no copy of the training data");
     let first = detect_all(tmp.path(), &ds, &model);
     let alarms = std::fs::read(tmp.path().join("alarms-0.csv")).unwrap();
@@ -235,7 +236,15 @@ fn saved_statistical_method_round_trip_is_deterministic_and_finds_attacks() {
     let state = model.join("detector.json");
     let text = std::fs::read_to_string(&state).unwrap();
     std::fs::write(&state, text.replacen('1', "2", 1)).unwrap();
-    let err = fails(&["detect", "--model", s(&model), "--in", s(&files(&ds.join("test"))[0]), "--out", s(&tmp.path().join("x.csv"))]);
+    let err = fails(&[
+        "detect",
+        "--model",
+        s(&model),
+        "--in",
+        s(&files(&ds.join("test"))[0]),
+        "--out",
+        s(&tmp.path().join("x.csv")),
+    ]);
     assert!(err.contains("detector.json") && err.contains("corrupted"), "{err}");
     std::fs::write(&state, text).unwrap();
     assert_better_than_chance(&first);

@@ -1,8 +1,9 @@
 //! Save/load round trips of every method of the registry (`eval::methods`) through a model
 //! directory (`eval::model_dir`): fitted on a small seeded synthetic case
 //! (`baselines::synthetic`), saved, loaded, and compared bit for bit: thresholds, batch and
-//! streaming scores, and the online decisions step by step. Also: an old model directory that
-//! holds copied training data is refused with a message naming the file.
+//! streaming scores, and the online decisions step by step. Also: a version-1 QUADFormer
+//! directory still loads; an old model directory that holds copied training data is refused
+//! with a message naming the file.
 
 // Helpers outside `#[test]` functions unwrap too: a failure there is a test failure.
 #![allow(clippy::unwrap_used)]
@@ -143,4 +144,38 @@ fn a_state_file_of_another_method_is_refused_by_name() {
     let Err(err) = model_dir::load(&out, &manifest) else { panic!("a CUSUM loaded from a chi-squared state") };
     let err = err.to_string();
     assert!(err.contains("detector.json"), "{err}");
+}
+
+#[test]
+fn a_version_1_quadformer_directory_still_loads() {
+    let (train, valid, test) = (split(&[1, 2], 1200), split(&[3], 1200), split(&[4], 700));
+    let cfgs = configs();
+    let (fitted, files) = Method::QuadFormer.fit_and_save(&cfgs, &train, &valid).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for f in &files {
+        std::fs::write(dir.path().join(&f.name), &f.bytes).unwrap();
+    }
+    let checkpoint = files.iter().find(|f| f.name == "quadformer.json").unwrap();
+    // As version 1 wrote it: the method as `quad-former`, the checkpoint as `storage`.
+    let manifest = serde_json::json!({
+        "format": "quadformer-model-dir",
+        "version": 1,
+        "method": "quad-former",
+        "channels": train.channels(),
+        "threshold": fitted.threshold(),
+        "seed": 3,
+        "configs": serde_json::to_value(&cfgs).unwrap(),
+        "storage": {
+            "kind": "checkpoint",
+            "manifest": "quadformer.json",
+            "manifest_sha256": model_dir::sha256_hex(&checkpoint.bytes)
+        },
+        "trained_on": ["synthetic"]
+    });
+    std::fs::write(dir.path().join("model.json"), manifest.to_string()).unwrap();
+    let m = model_dir::read_manifest(dir.path()).unwrap();
+    assert_eq!(m.method, Method::QuadFormer);
+    let loaded = model_dir::load(dir.path(), &m).unwrap();
+    let series = test.flights()[0].series();
+    assert_eq!(bits(&loaded.score(series).unwrap()), bits(&fitted.score(series).unwrap()));
 }

@@ -1,5 +1,6 @@
 //! Property tests of every reader under hostile input: flight CSVs, residue CSVs, TOML configs
-//! (flight, method and experiment configs) and model manifests. Inputs are mutations of valid
+//! (flight, method and experiment configs), model manifests and the saved states of the
+//! statistical methods and the SVM. Inputs are mutations of valid
 //! files (fields replaced by absurd values, lines dropped or duplicated, bytes flipped) and
 //! random bytes; every read must return `Ok` or an error, never panic. The case counts bound
 //! the run time (a few seconds on 2 cores).
@@ -419,6 +420,85 @@ proptest! {
         prop_assert!(matches!(o.status.code(), Some(0 | 1)), "{text}: {err}");
         if o.status.code() == Some(1) {
             prop_assert!(err.contains("filter.toml") || err.contains("EKF failed"), "{text}: {err}");
+        }
+    }
+}
+
+/// Methods whose saved state is a `detector.json` of their fitted parameters.
+const JSON_STATE_METHODS: [&str; 6] = ["cusum", "sprt", "bht", "chi2", "px4-gate", "svm"];
+
+/// One model directory per method of [`JSON_STATE_METHODS`], trained once on the fixture's
+/// residues (in the directory `residues/`).
+fn state_dirs() -> &'static Path {
+    static DIR: std::sync::OnceLock<tempfile::TempDir> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let tmp = tempfile::tempdir().unwrap();
+        let ds = tmp.path().join("residues");
+        std::fs::create_dir(&ds).unwrap();
+        std::fs::write(ds.join("a.csv"), residue_text()).unwrap();
+        for m in JSON_STATE_METHODS {
+            let o = std::process::Command::new(env!("CARGO_BIN_EXE_quadformer"))
+                .args([
+                    "train",
+                    "--method",
+                    m,
+                    "--quick",
+                    "--train",
+                    ds.to_str().unwrap(),
+                    "--valid",
+                    ds.to_str().unwrap(),
+                ])
+                .args(["--out", tmp.path().join(m).to_str().unwrap()])
+                .output()
+                .unwrap();
+            assert!(o.status.success(), "{m}: {}", String::from_utf8_lossy(&o.stderr));
+        }
+        tmp
+    })
+    .path()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 192, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// A hand-edited `detector.json` (its SHA-256 updated in `model.json`, so the decoder sees
+    /// it) loads or is an error; what loads scores the residues or returns an error.
+    #[test]
+    fn saved_state_reader_never_panics(
+        method in prop::sample::select(JSON_STATE_METHODS.to_vec()),
+        which in any::<prop::sample::Index>(),
+        value in json_value(),
+    ) {
+        let src = state_dirs().join(method);
+        let good: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(src.join("detector.json")).unwrap()).unwrap();
+        let mut all = Vec::new();
+        pointers(&good, String::new(), &mut all);
+        let pointer = which.get(&all);
+        let mut bad = good.clone();
+        if pointer.is_empty() {
+            bad = value;
+        } else if let Some(v) = bad.pointer_mut(pointer) {
+            *v = value;
+        }
+        let bad = bad.to_string();
+        let mut manifest: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(src.join("model.json")).unwrap()).unwrap();
+        manifest["state"][0]["sha256"] = serde_json::json!(eval::model_dir::sha256_hex(bad.as_bytes()));
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("model");
+        std::fs::create_dir(&dir).unwrap();
+        std::fs::write(dir.join("detector.json"), &bad).unwrap();
+        std::fs::write(dir.join("model.json"), manifest.to_string()).unwrap();
+        let m = eval::model_dir::read_manifest(&dir).unwrap();
+        if let Ok(det) = eval::model_dir::load(&dir, &m) {
+            let series = read_residues(&state_dirs().join("residues/a.csv")).unwrap();
+            let _ = det.score(series.series());
+            let _ = det.score_streaming(series.series());
+            let mut online = det.online();
+            for step in series.series().steps().take(200) {
+                let _ = online.update(&step);
+            }
         }
     }
 }

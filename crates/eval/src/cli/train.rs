@@ -237,7 +237,8 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     };
     let trained_on: Vec<String> = train_files.iter().chain(&valid_files).map(|p| p.display().to_string()).collect();
 
-    let (det, files) = method.fit_and_save(&cfgs, &train, &valid).map_err(|e| fit_err(format!("{}: {e}", method.name())))?;
+    let (det, files) =
+        method.fit_and_save(&cfgs, &train, &valid).map_err(|e| fit_err(format!("{}: {e}", method.name())))?;
     let threshold = finite(det.threshold())?;
     let trained = Trained { method, channels: channels.clone(), threshold, seed: args.seed, configs: cfgs, trained_on };
     model_dir::write(&args.out, overwrite, trained, &files)?;
