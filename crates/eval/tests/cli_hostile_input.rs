@@ -149,9 +149,9 @@ fn model_directories_are_closed_and_checked() {
     let detect = || fails(&["detect", "--model", s(&model), "--in", s(&input), "--out", s(&out)]);
     let json: serde_json::Value = serde_json::from_str(&good).unwrap();
     let cases: [(&str, serde_json::Value, &str); 5] = [
-        ("/storage/train/0", serde_json::json!("../../etc/passwd"), "storage.train[0]"),
-        ("/storage/valid/0", serde_json::json!("/etc/passwd"), "storage.valid[0]"),
-        ("/storage/valid", serde_json::json!([]), "storage.valid: no files"),
+        ("/state/0/file", serde_json::json!("../../etc/passwd"), "state[0].file"),
+        ("/state/0/file", serde_json::json!("/etc/passwd"), "state[0].file"),
+        ("/state", serde_json::json!([]), "state: no files"),
         ("/channels/1", serde_json::json!("gps_x"), "channels[1]: `gps_x` is listed twice"),
         ("/channels", serde_json::json!([]), "channels: empty"),
     ];

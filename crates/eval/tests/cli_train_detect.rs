@@ -207,10 +207,10 @@ fn quadformer_round_trip_finds_attacks_and_rejects_a_corrupt_checkpoint() {
     std::fs::write(&weights, &bytes).unwrap();
     let err = fails(&["detect", "--model", s(&model), "--in", s(&input), "--out", s(&out)]);
     assert!(err.contains("quadformer.safetensors") && err.contains("corrupted"), "{err}");
-    // A truncated weights file.
+    // A truncated weights file: the SHA-256 recorded in model.json no longer matches.
     std::fs::write(&weights, &bytes[..mid]).unwrap();
     let err = fails(&["detect", "--model", s(&model), "--in", s(&input), "--out", s(&out)]);
-    assert!(err.contains("quadformer.safetensors") && err.contains("truncated"), "{err}");
+    assert!(err.contains("quadformer.safetensors") && err.contains("corrupted"), "{err}");
     // A damaged model manifest.
     let manifest = model.join("model.json");
     let text = std::fs::read_to_string(&manifest).unwrap();
@@ -371,7 +371,7 @@ fn train_help() {
               -h, --help                Print help
               -V, --version             Print version
 
-            Model directory: QUADFormer is saved as a checkpoint (quadformer.json + quadformer.safetensors). The other methods (cusum, sprt, bht, chi2, px4-gate, svm, cnn, lstm) have no save format: the model directory keeps their configuration and a copy of the training and validation residues, and `quadformer detect` re-fits them from it (deterministic for a given seed). See docs/cli.md and decision 081.
+            Model directory: model.json and the fitted state, which `quadformer detect` loads without fitting: detector.json (the fitted parameters of cusum, sprt, bht, chi2, px4-gate and svm; the manifest of cnn and lstm, with detector.safetensors for their weights) or quadformer.json + quadformer.safetensors (the QUADFormer checkpoint). See docs/cli.md and decisions 081 and 110.
         "#]],
     );
 }
@@ -381,19 +381,19 @@ fn detect_help() {
     check_help(
         &["detect", "-h"],
         expect_test::expect![[r#"
-        Score a residue CSV with a trained model directory and write per-step scores and alarms
+            Score a residue CSV with a trained model directory and write per-step scores and alarms
 
-        Usage: quadformer detect [OPTIONS] --model <MODEL_DIR> --in <FILE.csv> --out <ALARMS.csv>
+            Usage: quadformer detect [OPTIONS] --model <MODEL_DIR> --in <FILE.csv> --out <ALARMS.csv>
 
-        Options:
-              --model <MODEL_DIR>  Model directory written by `quadformer train`
-              --in <FILE.csv>      Residue CSV to score (its channels must equal the model's training channels)
-              --out <ALARMS.csv>   Output alarm CSV: t, score, alarm[, label] (written atomically)
-              --streaming          Score as the streaming detector does (each step from itself and earlier steps only, at the streaming threshold), as `quadformer fuse` runs it
-          -h, --help               Print help
-          -V, --version            Print version
+            Options:
+                  --model <MODEL_DIR>  Model directory written by `quadformer train`
+                  --in <FILE.csv>      Residue CSV to score (its channels must equal the model's training channels)
+                  --out <ALARMS.csv>   Output alarm CSV: t, score, alarm[, label] (written atomically)
+                  --streaming          Score as the streaming detector does (each step from itself and earlier steps only, at the streaming threshold), as `quadformer fuse` runs it
+              -h, --help               Print help
+              -V, --version            Print version
 
-        QUADFormer models load from their checkpoint; the other methods are re-fitted from the training data recorded in the model directory (see `quadformer train --help`, docs/cli.md).
-    "#]],
+            Every method loads the fitted state saved in the model directory; nothing is re-fitted (see `quadformer train --help`, docs/cli.md).
+        "#]],
     );
 }
