@@ -51,7 +51,7 @@ pub enum ScenarioError {
         /// The case.
         case: &'static str,
         /// The plot error.
-        source: PlotError,
+        source: Box<PlotError>,
     },
     /// Building the quick cell or fitting the detector on it failed.
     #[error("dataset {cell}, GPS channels: {msg}")]
@@ -149,7 +149,9 @@ pub fn fly_all(
     for &sc in scenarios {
         let flight =
             |case: Case| move |source| ScenarioError::Flight { scenario: sc.name(), case: case.name(), source };
-        let plot = |case: Case| move |source| ScenarioError::Plot { scenario: sc.name(), case: case.name(), source };
+        let plot = |case: Case| {
+            move |source| ScenarioError::Plot { scenario: sc.name(), case: case.name(), source: Box::new(source) }
+        };
         let base = ScenarioConfig { seed, ..ScenarioConfig::default() };
         for case in [Case::NoAttack, Case::AttackUndetected] {
             let r = run_case(sc, case, &base, None).map_err(flight(case))?;
