@@ -3,7 +3,7 @@
 //!
 //! An interval is active on the half-open time range `(t0, t1]` (seconds). Offsets `d_k` are in
 //! the local ENU frame in metres. A plan is a pure function of time plus the clean GPS history,
-//! so the same plan serves batch injection ([`crate::inject`]) and closed-loop fusion, which
+//! so the same plan serves batch injection ([`crate::inject()`]) and closed-loop fusion, which
 //! injects step by step with [`AttackPlan::apply`].
 
 use nalgebra::Vector3;

@@ -1,6 +1,6 @@
 //! Detection metrics of QUADFormer-rs (docs/decisions/060-metric-definitions.md): the per-step
 //! confusion counts and the F1-maximising threshold search that every detector's `fit` uses
-//! ([`confusion`]), and the evaluation of scored flights ([`evaluation`]: ROC and PR curves,
+//! ([`mod@confusion`]), and the evaluation of scored flights ([`evaluation`]: ROC and PR curves,
 //! detection delays, false alarms per clean minute, mean ± std over seeds).
 //!
 //! The bottom layer of the workspace beside `uav-dynamics`: plain slices of scores, alarms,

@@ -2,7 +2,7 @@
 //! docs/decisions/110-method-registry.md): what `quadformer train` writes and `quadformer
 //! detect` and `quadformer fuse --model` load, for every method of the registry.
 //!
-//! Layout, written atomically ([`write`]):
+//! Layout, written atomically ([`write()`]):
 //! - `model.json` ([`ModelManifest`], format `quadformer-model-dir`, version 2): method,
 //!   training channels, the threshold chosen on validation, seed, every method's configuration
 //!   as used, the training files, and `state`, the files of the saved fitted state with their

@@ -271,7 +271,7 @@ pub fn csv(rows: &[ScenarioRow]) -> String {
     s
 }
 
-/// Writes [`csv`] atomically to `path`.
+/// Writes [`csv()`] atomically to `path`.
 ///
 /// # Errors
 /// [`IoError`] naming the file.
