@@ -31,9 +31,9 @@ use candle_core::{D, DType, Device, Module, Tensor};
 use candle_nn::{Conv1d, Conv1dConfig, Linear, VarBuilder, VarMap};
 use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
 use nn_toolkit::loss::masked_bce_with_logits;
+use nn_toolkit::saved::sha256_hex;
 use nn_toolkit::{Batch, Normaliser, TrainConfig, TrainableModel, WindowConfig, Windows, init_vars_seeded, train};
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 
 use crate::common::{fit_channels, labelled_valid};
 use crate::error::{BaselineError, Result};
@@ -492,10 +492,6 @@ pub struct NeuralFiles {
     pub weights: Vec<u8>,
 }
 
-fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
-}
-
 impl<N: PerStepNet> NeuralDetector<N> {
     /// Encodes the fitted detector (module docs).
     ///
@@ -538,7 +534,7 @@ fn decode_neural<N: PerStepNet>(
 ) -> Result<NeuralDetector<N>> {
     use crate::state::{check_channels, check_finite, state_err};
     let m: NeuralManifest =
-        serde_json::from_str(manifest).map_err(|e| state_err(crate::state::malformed("manifest ", &e)))?;
+        serde_json::from_str(manifest).map_err(|e| state_err(nn_toolkit::saved::malformed_json("manifest", &e)))?;
     if m.format != NEURAL_FORMAT || m.version != NEURAL_VERSION {
         return Err(state_err(format!(
             "format `{}` version {}, this build reads `{NEURAL_FORMAT}` version {NEURAL_VERSION}",

@@ -36,7 +36,8 @@ pub trait JsonState: Serialize + DeserializeOwned {
     /// [`BaselineError::State`] with line and column for malformed JSON or naming the
     /// inconsistent field.
     fn from_json(text: &str) -> Result<Self> {
-        let s: Self = serde_json::from_str(text).map_err(|e| state_err(malformed("", &e)))?;
+        let s: Self =
+            serde_json::from_str(text).map_err(|e| state_err(nn_toolkit::saved::malformed_json("state", &e)))?;
         s.check_state()?;
         Ok(s)
     }
@@ -65,17 +66,6 @@ pub(crate) fn check_channels(channels: &[String]) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// `malformed {what}at line L, column C: message`, the position said once (serde_json's
-/// message repeats it at its end).
-pub(crate) fn malformed(what: &str, e: &serde_json::Error) -> String {
-    let msg = e.to_string();
-    let msg = match msg.rsplit_once(" at line ") {
-        Some((head, _)) if e.line() > 0 => head.to_owned(),
-        _ => msg,
-    };
-    format!("malformed {what}at line {}, column {}: {msg}", e.line(), e.column())
 }
 
 /// Checks that every value is finite.

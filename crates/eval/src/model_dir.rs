@@ -111,18 +111,9 @@ pub struct ModelManifest {
     pub trained_on: Vec<String>,
 }
 
-/// Lower-case hex SHA-256 of `bytes`.
-#[must_use]
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::Digest as _;
-    sha2::Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
-}
+pub use nn_toolkit::saved::sha256_hex;
 
-/// Whether `name` is a plain file name: one normal component, no separator.
-#[must_use]
-pub fn is_plain_name(name: &str) -> bool {
-    !name.contains(['/', '\\']) && Path::new(name).file_name().is_some_and(|n| n == name)
-}
+pub use nn_toolkit::saved::is_plain_name;
 
 /// What a fitted method's model directory records besides its state.
 #[derive(Debug, Clone, PartialEq)]
@@ -255,16 +246,6 @@ impl<'a> SavedState<'a> {
     }
 }
 
-/// A JSON error's message without the ` at line L column C` serde_json appends (the caller
-/// reports the position once, itself).
-fn json_message(e: &serde_json::Error) -> String {
-    let msg = e.to_string();
-    match msg.rsplit_once(" at line ") {
-        Some((head, _)) if e.line() > 0 => head.to_owned(),
-        _ => msg,
-    }
-}
-
 /// Checks every field of a parsed manifest (see [`read_manifest`]); the message names the field.
 fn check_fields(m: &ModelManifest) -> std::result::Result<(), String> {
     if m.channels.is_empty() {
@@ -371,9 +352,7 @@ pub fn read_manifest(model_dir: &Path) -> Result<ModelManifest> {
     let path = model_dir.join(MODEL_FILE);
     let bad = |msg: String| ModelDirError::Invalid { path: path.clone(), msg };
     let text = crate::io::read_text(&path)?;
-    let malformed = |e: serde_json::Error| {
-        bad(format!("malformed model manifest at line {}, column {}: {}", e.line(), e.column(), json_message(&e)))
-    };
+    let malformed = |e: serde_json::Error| bad(nn_toolkit::saved::malformed_json("model manifest", &e));
     let h: Header = serde_json::from_str(&text).map_err(malformed)?;
     if h.format != MODEL_FORMAT {
         return Err(bad(format!("format is `{}`, expected `{MODEL_FORMAT}`", h.format)));

@@ -310,6 +310,23 @@ fn pointers(v: &serde_json::Value, here: String, out: &mut Vec<String>) {
     out.push(here);
 }
 
+/// The JSON of `path` with the node `which` picks (any leaf or container, or the whole
+/// document) replaced by `value`.
+fn replaced_at(path: &Path, which: prop::sample::Index, value: serde_json::Value) -> serde_json::Value {
+    let good: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let mut all = Vec::new();
+    pointers(&good, String::new(), &mut all);
+    let pointer = which.get(&all);
+    let mut bad = good;
+    if pointer.is_empty() {
+        return value;
+    }
+    if let Some(v) = bad.pointer_mut(pointer) {
+        *v = value;
+    }
+    bad
+}
+
 /// A model directory of a statistical method (CUSUM), trained once.
 fn model_dir() -> &'static Path {
     static DIR: std::sync::OnceLock<(tempfile::TempDir, PathBuf)> = std::sync::OnceLock::new();
@@ -336,17 +353,7 @@ proptest! {
     #[test]
     fn manifest_reader_never_panics(which in any::<prop::sample::Index>(), value in json_value()) {
         let model = model_dir();
-        let good: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(model.join("model.json")).unwrap()).unwrap();
-        let mut all = Vec::new();
-        pointers(&good, String::new(), &mut all);
-        let pointer = which.get(&all);
-        let mut bad = good.clone();
-        if pointer.is_empty() {
-            bad = value;
-        } else if let Some(v) = bad.pointer_mut(pointer) {
-            *v = value;
-        }
+        let bad = replaced_at(&model.join("model.json"), which, value);
         let tmp = tempfile::tempdir().unwrap();
         let dir = tmp.path().join("model");
         std::fs::create_dir(&dir).unwrap();
@@ -470,18 +477,7 @@ proptest! {
         value in json_value(),
     ) {
         let src = state_dirs().join(method);
-        let good: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(src.join("detector.json")).unwrap()).unwrap();
-        let mut all = Vec::new();
-        pointers(&good, String::new(), &mut all);
-        let pointer = which.get(&all);
-        let mut bad = good.clone();
-        if pointer.is_empty() {
-            bad = value;
-        } else if let Some(v) = bad.pointer_mut(pointer) {
-            *v = value;
-        }
-        let bad = bad.to_string();
+        let bad = replaced_at(&src.join("detector.json"), which, value).to_string();
         let mut manifest: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(src.join("model.json")).unwrap()).unwrap();
         manifest["state"][0]["sha256"] = serde_json::json!(eval::model_dir::sha256_hex(bad.as_bytes()));

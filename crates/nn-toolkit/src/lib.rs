@@ -10,7 +10,8 @@
 //!   (`fn loss(&self, batch: &Batch, phase: usize) -> candle_core::Result<Tensor>`);
 //! - [`init_vars_seeded`]: seeded initialisation of every variable of a `VarMap` (candle's own
 //!   generator cannot be seeded);
-//! - [`tune_allocator`]: glibc malloc tuning, about 1.6× faster candle training.
+//! - [`tune_allocator`]: glibc malloc tuning, about 1.6× faster candle training;
+//! - [`saved`]: plain file names, SHA-256 and JSON error messages of saved-model files.
 //!
 //! A per-step classifier trained with these pieces:
 //!
@@ -63,6 +64,7 @@ pub mod init;
 pub mod layers;
 pub mod loss;
 pub mod matmul;
+pub mod saved;
 pub mod train;
 pub mod vmath;
 pub mod window;

@@ -16,11 +16,11 @@ use std::path::Path;
 
 use candle_core::Device;
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 
 use crate::detector::{ModeResult, QuadFormerConfig, QuadFormerDetector};
 use crate::error::{ModelError, Result};
 use crate::model::QuadFormerNet;
+use nn_toolkit::saved::{is_plain_name, malformed_json, sha256_hex};
 use nn_toolkit::window::Normaliser;
 
 /// Format name written into every manifest.
@@ -125,25 +125,6 @@ fn check_results(path: &Path, m: &Manifest) -> Result<()> {
     Ok(())
 }
 
-/// A JSON error's message without the ` at line L column C` serde_json appends (the caller
-/// reports the position once, itself).
-fn json_message(e: &serde_json::Error) -> String {
-    let msg = e.to_string();
-    match msg.rsplit_once(" at line ") {
-        Some((head, _)) if e.line() > 0 => head.to_owned(),
-        _ => msg,
-    }
-}
-
-/// Whether `name` is a plain file name: one normal path component (no `/`, `..`, root).
-fn is_plain_name(name: &str) -> bool {
-    !name.contains(['/', '\\']) && Path::new(name).file_name().is_some_and(|n| n == name)
-}
-
-fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
-}
-
 /// The two files of a checkpoint, encoded: the JSON manifest and the safetensors weights
 /// it names. The caller writes them (`eval::io` writes every output atomically).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -218,9 +199,7 @@ impl QuadFormerDetector {
     /// As [`QuadFormerDetector::load`].
     pub fn load_on(path: &Path, device: &Device) -> Result<Self> {
         let text = read_bounded(path, MAX_MANIFEST_BYTES)?;
-        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| {
-            ck(path, format!("malformed manifest at line {}, column {}: {}", e.line(), e.column(), json_message(&e)))
-        })?;
+        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| ck(path, malformed_json("manifest", &e)))?;
         if manifest.format != FORMAT {
             return Err(ck(path, format!("format is `{}`, expected `{FORMAT}`", manifest.format)));
         }
