@@ -216,7 +216,12 @@ impl Detector for Cusum {
     }
 
     fn online(&self) -> Box<dyn OnlineDetector + '_> {
-        Box::new(CusumOnline { m: self.channels.len(), b: self.b, tau: self.tau, state: CusumState::default() })
+        self.online_at(self.tau)
+    }
+
+    /// The recursion alarming and restarting at `threshold` instead of `τ`.
+    fn online_at(&self, threshold: f64) -> Box<dyn OnlineDetector + '_> {
+        Box::new(CusumOnline { m: self.channels.len(), b: self.b, tau: threshold, state: CusumState::default() })
     }
 }
 

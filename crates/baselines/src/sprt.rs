@@ -210,7 +210,12 @@ impl Detector for Sprt {
     }
 
     fn online(&self) -> Box<dyn OnlineDetector + '_> {
-        Box::new(SprtOnline { detector: self, state: SprtState::new(self.channels.len()) })
+        self.online_at(self.upper)
+    }
+
+    /// The `2m` tests alarming and restarting at `threshold` instead of `A`.
+    fn online_at(&self, threshold: f64) -> Box<dyn OnlineDetector + '_> {
+        Box::new(SprtOnline { detector: self, upper: threshold, state: SprtState::new(self.channels.len()) })
     }
 }
 
@@ -218,6 +223,8 @@ impl Detector for Sprt {
 #[derive(Debug, Clone)]
 pub struct SprtOnline<'a> {
     detector: &'a Sprt,
+    /// Alarm and restart level (`A` unless built by `online_at`).
+    upper: f64,
     state: SprtState,
 }
 
@@ -228,7 +235,7 @@ impl OnlineDetector for SprtOnline<'_> {
             return Err(step_dim_error(m, step.dim()));
         }
         let d = self.detector;
-        let (score, alarm) = self.state.step(step.r_k, step.s_k, d.delta, d.upper, d.lower);
+        let (score, alarm) = self.state.step(step.r_k, step.s_k, d.delta, self.upper, d.lower);
         Ok(OnlineDecision { score, alarm })
     }
 

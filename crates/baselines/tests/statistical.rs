@@ -165,3 +165,49 @@ fn detectors_and_configs_are_send_and_sync() {
     check::<BhtConfig>();
     check::<Px4GateConfig>();
 }
+
+/// The closed loop picks its own threshold: CUSUM and SPRT must then restart their statistic
+/// there, not at the fitted level, or alarms between the two never clear.
+#[test]
+fn online_at_another_threshold_alarms_and_restarts_there() -> TestResult {
+    let train = split(&[31], 3000)?;
+    let test = split(&[32], 3000)?;
+    let series = test.flights()[0].series();
+    let cusum = CusumConfig { tuning: Tuning::Textbook, ..Default::default() }.fit(&train, &train)?;
+    let sprt = SprtConfig { tuning: Tuning::Textbook, ..Default::default() }.fit(&train, &train)?;
+
+    // CUSUM at t is the recursion S_k = max(0, S'_{k−1} + z_k − b) reset above t.
+    let t = 0.5 * cusum.tau();
+    let (mut online, mut s) = (cusum.online_at(t), 0.0_f64);
+    for (k, step) in series.steps().enumerate() {
+        let d = online.update(&step)?;
+        let expected = (s + step.nis - cusum.b()).max(0.0);
+        assert!((d.score - expected).abs() < 1e-9, "CUSUM step {k}: {} vs {expected}", d.score);
+        assert_eq!(d.alarm, d.score > t, "CUSUM step {k}");
+        s = if d.alarm { 0.0 } else { expected };
+    }
+
+    // SPRT at t: every test restarts once above t, so no score exceeds t by more than one
+    // step's log-likelihood ratio; at the fitted A it does (the check can fail).
+    let t = 0.5 * sprt.threshold();
+    let delta = sprt.delta();
+    let overshoot = |mut online: Box<dyn ekf_residue::OnlineDetector + '_>| -> Result<f64, DetectError> {
+        let mut worst = f64::NEG_INFINITY;
+        for step in series.steps() {
+            let m = step.dim();
+            let l_max = (0..m)
+                .map(|i| delta * step.r_k[i].abs() / step.s_k[i * m + i].sqrt() - 0.5 * delta * delta)
+                .fold(0.0, f64::max);
+            worst = worst.max(online.update(&step)?.score - (t + l_max));
+        }
+        Ok(worst)
+    };
+    assert!(overshoot(sprt.online_at(t))? <= 1e-9);
+    assert!(overshoot(sprt.online())? > 0.0, "at A the statistic should pass t by more than one step");
+    let mut online = sprt.online_at(t);
+    for step in series.steps() {
+        let d = online.update(&step)?;
+        assert_eq!(d.alarm, d.score > t, "SPRT at {}", step.t);
+    }
+    Ok(())
+}

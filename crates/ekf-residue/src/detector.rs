@@ -66,6 +66,15 @@ pub trait Detector: Send + Sync {
         Box::new(WindowedOnline::new(self, self.online_window()))
     }
 
+    /// The streaming form alarming at `threshold` of its score instead of the fitted one (the
+    /// closed loop picks its own threshold). The default keeps [`Detector::online`] and
+    /// re-thresholds its score ([`Rethresholded`]), which is exact for detectors without
+    /// state that depends on the threshold; a detector whose recursion restarts at its alarm
+    /// (CUSUM, SPRT) overrides it so that it restarts at `threshold`.
+    fn online_at(&self, threshold: f64) -> Box<dyn OnlineDetector + '_> {
+        Box::new(Rethresholded { inner: self.online(), threshold })
+    }
+
     /// Number of past steps the default [`Detector::online`] keeps. Default 100 (the paper's
     /// window length `l`, sec:attack_detector).
     fn online_window(&self) -> usize {
@@ -118,6 +127,26 @@ pub struct OnlineDecision {
     pub score: f64,
     /// Whether the score is above the fitted threshold.
     pub alarm: bool,
+}
+
+/// An online detector whose alarm is `score > threshold` at a threshold of the caller's
+/// ([`Detector::online_at`]).
+pub struct Rethresholded<'a> {
+    /// The detector whose score is kept.
+    pub inner: Box<dyn OnlineDetector + 'a>,
+    /// The alarm threshold of that score.
+    pub threshold: f64,
+}
+
+impl OnlineDetector for Rethresholded<'_> {
+    fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
+        let d = self.inner.update(step)?;
+        Ok(OnlineDecision { score: d.score, alarm: d.score > self.threshold })
+    }
+
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
 }
 
 /// Streaming adapter that re-scores a sliding window of recent steps with a batch

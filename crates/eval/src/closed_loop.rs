@@ -34,7 +34,7 @@ use attack_inject::AttackedSample;
 use attack_inject::{AttackConfig, AttackKind};
 use detection_metrics::{Confusion, best_f1_threshold};
 use ekf_residue::residues::{FilterConfig, GPS_CHANNELS};
-use ekf_residue::{DetectError, Detector, LabelledResidues, OnlineDecision, OnlineDetector, ResidueStep};
+use ekf_residue::{Detector, LabelledResidues, OnlineDetector};
 use rayon::prelude::*;
 use resilient_fusion::estimator::ResilientConfig;
 use resilient_fusion::gates::{InnovationGate, Oracle};
@@ -54,7 +54,7 @@ use crate::runner::{fit, read_json_cache, write_json_cache};
 use crate::table::to_csv;
 
 /// Bumped when the unit's computation changes, so cached units are recomputed.
-const UNIT_VERSION: u32 = 2;
+const UNIT_VERSION: u32 = 3;
 
 /// Seconds after an attack ends over which `max_error_after_m` is taken.
 pub const AFTER_WINDOW_S: f64 = 30.0;
@@ -197,6 +197,8 @@ pub struct ClosedLoopRow {
     /// Alarm threshold of the detector's streaming score in the loop (none for the reference
     /// rows, which have their own decision rules).
     pub threshold: Option<f64>,
+    /// Rollback look-back of the fitted detectors in the loop, seconds ([`LoopSetting`]).
+    pub lookback_s: Option<f64>,
     /// Per-fix precision of the alarms.
     pub precision: f64,
     /// Per-fix recall.
@@ -341,13 +343,13 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
         .into_iter()
         .flatten()
         .collect();
-    let mut fitted: Vec<(Method, Box<dyn Detector>, f64)> = Vec::new();
+    let mut fitted: Vec<(Method, Box<dyn Detector>, LoopSetting)> = Vec::new();
     for m in methods {
         if let LoopMethod::Fitted(method) = *m {
             let det = fit(method, &cfgs, &train, &valid)?.detector;
-            let threshold = loop_threshold(det.as_ref(), &valid_flights, &filter)
+            let setting = loop_setting(det.as_ref(), &valid_flights, &filter)
                 .map_err(|e| ReproduceError::Config(format!("closed loop {}: {e}", unit.slug())))?;
-            fitted.push((method, det, threshold));
+            fitted.push((method, det, setting));
         }
     }
 
@@ -373,9 +375,9 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
                 if *family == Family::Ramp && latency_s == 0.0 && unit.seed == 0 {
                     record_drift(&mut drift, &flights, &traces, method.name());
                 }
-                let threshold = if let Pilot::Fitted(_, t) = pilot { Some(t) } else { None };
+                let setting = if let Pilot::Fitted(_, s) = pilot { Some(s) } else { None };
                 let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
-                rows.push(row(unit, *family, method.name(), latency_s, threshold, &steps));
+                rows.push(row(unit, *family, method.name(), latency_s, setting, &steps));
             }
         }
     }
@@ -384,49 +386,82 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
     Ok(rec)
 }
 
-/// A fitted detector's online form alarming at its own threshold instead of the fitted one.
-struct AtThreshold<'d> {
-    inner: Box<dyn OnlineDetector + 'd>,
-    threshold: f64,
+/// Quantiles of the clean validation scores flown at the fitted threshold that are candidates
+/// of the loop threshold, with the fitted threshold and the F1-best threshold of those scores.
+pub const LOOP_THRESHOLD_QUANTILES: [f64; 6] = [0.9, 0.95, 0.98, 0.99, 0.995, 0.999];
+
+/// Longest rollback look-back, seconds.
+pub const MAX_LOOKBACK_S: f64 = 5.0;
+
+/// How a fitted detector flies in the loop, chosen on validation flights ([`loop_setting`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LoopSetting {
+    /// Alarm threshold of its streaming score.
+    pub threshold: f64,
+    /// How far before an alarmed fix the estimator rewinds
+    /// ([`ResilientConfig::rollback_lookback_s`]), seconds.
+    pub lookback_s: f64,
 }
 
-impl OnlineDetector for AtThreshold<'_> {
-    fn update(&mut self, step: &ResidueStep<'_>) -> std::result::Result<OnlineDecision, DetectError> {
-        let d = self.inner.update(step)?;
-        Ok(OnlineDecision { score: d.score, alarm: d.score > self.threshold })
-    }
-
-    fn reset(&mut self) {
-        self.inner.reset();
-    }
-}
-
-/// The loop threshold of a fitted detector (module doc): fly `valid` (latency 0) with the
-/// detector at its streaming threshold and return the F1-maximising threshold of the scores
-/// it gave there.
+/// The loop setting of a fitted detector (module doc), from the trained families' validation
+/// flights alone, flown at latency 0:
+///
+/// 1. Fly them with the detector at its streaming threshold. The look-back is the 90th
+///    percentile of its detection delays there (at most [`MAX_LOOKBACK_S`]), so an alarm
+///    also undoes the spoofed fixes fused before it in nine attacks out of ten.
+/// 2. Candidates: that threshold, the F1-maximising threshold of the scores it gave there and
+///    [`LOOP_THRESHOLD_QUANTILES`] of its scores on clean fixes.
+/// 3. Fly them again at each candidate with that look-back; the threshold whose own alarms
+///    have the highest per-fix F1 wins (ties: the higher threshold).
+///
+/// Each candidate is judged by the flight it produces, so a threshold whose false alarm starts
+/// a drift the detector then keeps alarming on (lock-out) loses to one that does not.
 ///
 /// # Errors
 /// A flight's error, or no attacked fix among the validation flights.
-pub fn loop_threshold(
+pub fn loop_setting(
     det: &dyn Detector,
     valid: &[PlannedFlight],
     filter: &FilterConfig,
-) -> std::result::Result<f64, String> {
-    let traces = fly_family(valid, filter, Pilot::Fitted(det, det.streaming_threshold()), 0.0)?;
+) -> std::result::Result<LoopSetting, String> {
+    let fitted = LoopSetting { threshold: det.streaming_threshold(), lookback_s: 0.0 };
+    let traces = fly_family(valid, filter, Pilot::Fitted(det, fitted), 0.0)?;
+    let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
+    let lookback_s = loop_metrics(&steps, false).delay_p90_s.unwrap_or(0.0).clamp(0.0, MAX_LOOKBACK_S);
     let pairs: Vec<(Vec<f64>, Vec<bool>)> = traces
         .iter()
         .map(|tr| (tr.steps.iter().map(|s| s.score).collect(), tr.steps.iter().map(|s| s.attacked).collect()))
         .collect();
-    best_f1_threshold(pairs.iter().map(|(s, l)| (s.as_slice(), l.as_slice())))
-        .map(|(t, _)| t)
-        .map_err(|e| format!("{} loop threshold: {e}", det.name()))
+    let (one_step, _) = best_f1_threshold(pairs.iter().map(|(s, l)| (s.as_slice(), l.as_slice())))
+        .map_err(|e| format!("{} loop threshold: {e}", det.name()))?;
+    let clean: Vec<f64> =
+        traces.iter().flat_map(|tr| tr.steps.iter().filter(|s| !s.attacked).map(|s| s.score)).collect();
+    let mut candidates = vec![fitted.threshold, one_step];
+    candidates.extend(LOOP_THRESHOLD_QUANTILES.iter().filter_map(|&q| quantile(&clean, q)));
+    candidates.retain(|t| t.is_finite());
+    candidates.sort_by(f64::total_cmp);
+    candidates.dedup();
+    let flown: Vec<(f64, f64)> = candidates
+        .par_iter()
+        .map(|&threshold| {
+            let traces = fly_family(valid, filter, Pilot::Fitted(det, LoopSetting { threshold, lookback_s }), 0.0)?;
+            let (alarms, labels): (Vec<bool>, Vec<bool>) =
+                traces.iter().flat_map(|tr| tr.steps.iter().map(|s| (s.alarm, s.attacked))).unzip();
+            Ok((threshold, Confusion::count(&alarms, &labels).f1()))
+        })
+        .collect::<std::result::Result<_, String>>()?;
+    flown
+        .into_iter()
+        .max_by(|a, b| a.1.total_cmp(&b.1).then(a.0.total_cmp(&b.0)))
+        .map(|(threshold, _)| LoopSetting { threshold, lookback_s })
+        .ok_or_else(|| format!("{} loop threshold: no candidate", det.name()))
 }
 
 /// What decides the exclusions of a flight.
 #[derive(Clone, Copy)]
 enum Pilot<'d> {
-    /// A fitted detector at a threshold of its streaming score.
-    Fitted(&'d dyn Detector, f64),
+    /// A fitted detector at its loop setting.
+    Fitted(&'d dyn Detector, LoopSetting),
     /// PX4 EKF2's gate.
     Px4Ekf2,
     /// No detector.
@@ -458,9 +493,11 @@ fn fly_family(
         .map(|f| {
             let mut cfg = ResilientConfig { latency_s, ..ResilientConfig::default() };
             let online: Option<Box<dyn OnlineDetector + '_>> = match pilot {
-                Pilot::Fitted(d, threshold) => {
+                Pilot::Fitted(d, setting) => {
                     cfg.detector_channels = d.channels().to_vec();
-                    Some(Box::new(AtThreshold { inner: d.online(), threshold }))
+                    cfg.readmit_nis = Some(ResilientConfig::CHI2_3_99);
+                    cfg.rollback_lookback_s = setting.lookback_s;
+                    Some(d.online_at(setting.threshold))
                 }
                 Pilot::Px4Ekf2 => {
                     cfg.hold_s = 0.0;
@@ -530,7 +567,7 @@ fn row(
     family: Family,
     method: &str,
     latency_s: f64,
-    threshold: Option<f64>,
+    setting: Option<LoopSetting>,
     flights: &[&[LoopStep]],
 ) -> ClosedLoopRow {
     let m = loop_metrics(flights, family == Family::Ramp);
@@ -542,7 +579,8 @@ fn row(
         method: method.to_owned(),
         latency_s,
         seed: unit.seed,
-        threshold,
+        threshold: setting.map(|s| s.threshold),
+        lookback_s: setting.map(|s| s.lookback_s),
         precision: m.precision,
         recall: m.recall,
         f1: m.f1,
@@ -990,7 +1028,8 @@ mod tests {
         // Attack on fixes 100..110; alarms on 103..110 (delay 0.3 s) and a clean false alarm
         // event on 200..205 (5 fixes excluded, 0.5 s of GPS lost).
         let f = steps(600, |k| (100..110).contains(&k), |k| (103..110).contains(&k) || (200..205).contains(&k));
-        let r = row(UNIT, Family::Ramp, "X", 0.0, Some(1.0), &[f.as_slice()]);
+        let r =
+            row(UNIT, Family::Ramp, "X", 0.0, Some(LoopSetting { threshold: 1.0, lookback_s: 0.5 }), &[f.as_slice()]);
         assert_eq!((r.precision, r.recall), (7.0 / 12.0, 0.7));
         assert!((r.delay_median_s.unwrap() - 0.3).abs() < 1e-9);
         assert_eq!(r.n_intervals, 1);

@@ -15,7 +15,14 @@
 //! 3. The filter updates with VO and, unless excluded, the GPS fix (alg:alg3 lines 2–4). While
 //!    excluded the GPS innovation is still computed against the prior, so the detector keeps
 //!    watching the stream.
-//! 4. Optionally, as PX4 EKF2 does (`reset_timeout_max` = 7 s in `EKF/common.h`), GPS that has
+//! 4. Optionally ([`ResilientConfig::readmit_nis`]), an exclusion also ends when the fixes
+//!    agree with the prediction: once every GPS fix for `hold_s` has passed a χ² gate on its
+//!    innovation against the prior, whose covariance has grown with the dead reckoning, GPS is
+//!    re-admitted although the detector still alarms, and its alarms go unheeded until it
+//!    clears once. A false alarm then costs a short exclusion instead of locking GPS out: the
+//!    drifted estimate makes honest fixes look unusual to a detector, but not to the filter's
+//!    own covariance. A spoof larger than the prediction's uncertainty stays excluded.
+//! 5. Optionally, as PX4 EKF2 does (`reset_timeout_max` = 7 s in `EKF/common.h`), GPS that has
 //!    been excluded for [`ResilientConfig::reset_after_s`] is re-admitted with a position
 //!    reset onto the fix ([`Estimator::reset_position`]), so the estimate jumps onto whatever
 //!    the receiver reports.
@@ -70,11 +77,23 @@ pub struct ResilientConfig {
     /// (docs/decisions/023-resilient-fusion.md).
     #[serde(default)]
     pub rollback: Rollback,
+    /// How far before the alarmed residue step the rollback rewinds, seconds, so the fixes
+    /// fused during the detector's own detection delay are undone too (a spoof fused before the
+    /// first alarm corrupts the velocity and accelerometer-bias estimates, and the dead
+    /// reckoning that follows diverges). Default 0: rewind to the alarmed step. Applies at
+    /// every latency, 0 included, with [`Rollback::ReplayWithoutGps`].
+    #[serde(default)]
+    pub rollback_lookback_s: f64,
     /// Exclusion time after which GPS is re-admitted with a position reset onto the fix
     /// (module doc, step 4), seconds. Default `None`: exclusion lasts while alarms do. PX4
     /// EKF2 behaves as `Some(7.0)`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reset_after_s: Option<f64>,
+    /// NIS gate of the GPS channels (`gps_x gps_y gps_z`, against the prior) under which an
+    /// exclusion ends although the detector alarms (module doc, step 4). Default `None`:
+    /// exclusion lasts while alarms do. [`ResilientConfig::CHI2_3_99`] is the χ²₃ 0.99 quantile.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub readmit_nis: Option<f64>,
 }
 
 impl Default for ResilientConfig {
@@ -85,12 +104,18 @@ impl Default for ResilientConfig {
             readmit_inflation_m2: 1.0,
             detector_channels: GPS_CHANNELS.iter().map(|s| (*s).to_string()).collect(),
             rollback: Rollback::default(),
+            rollback_lookback_s: 0.0,
             reset_after_s: None,
+            readmit_nis: None,
         }
     }
 }
 
 impl ResilientConfig {
+    /// χ²₃ quantile at 0.99 (11.345 in standard χ² tables): the re-admission gate of the
+    /// closed-loop experiment.
+    pub const CHI2_3_99: f64 = 11.345;
+
     /// Check the ranges.
     ///
     /// # Errors
@@ -100,18 +125,18 @@ impl ResilientConfig {
             ("latency_s", self.latency_s),
             ("hold_s", self.hold_s),
             ("readmit_inflation_m2", self.readmit_inflation_m2),
+            ("rollback_lookback_s", self.rollback_lookback_s),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(FusionError::Config { field, msg: format!("must be finite and non-negative, got {v}") });
             }
         }
-        if let Some(v) = self.reset_after_s
-            && !(v.is_finite() && v > 0.0)
-        {
-            return Err(FusionError::Config {
-                field: "reset_after_s",
-                msg: format!("must be finite and positive, got {v}"),
-            });
+        for (field, v) in [("reset_after_s", self.reset_after_s), ("readmit_nis", self.readmit_nis)] {
+            if let Some(v) = v
+                && !(v.is_finite() && v > 0.0)
+            {
+                return Err(FusionError::Config { field, msg: format!("must be finite and positive, got {v}") });
+            }
         }
         if self.detector_channels.is_empty() {
             return Err(FusionError::Config {
@@ -169,6 +194,11 @@ pub struct ResilientEstimator<'d> {
     pending: VecDeque<Pending>,
     excluded_since: Option<f64>,
     last_alarm_avail: f64,
+    /// While excluded: time of the first of the current run of fixes inside `readmit_nis`.
+    consistent_since: Option<f64>,
+    /// Alarms are unheeded until the detector clears (after a re-admission by consistency).
+    alarms_overridden: bool,
+    n_overrides: usize,
     excluded_intervals: Vec<(f64, f64)>,
     alarm_times: Vec<f64>,
     buffer: VecDeque<Event>,
@@ -208,6 +238,9 @@ impl<'d> ResilientEstimator<'d> {
             pending: VecDeque::new(),
             excluded_since: None,
             last_alarm_avail: f64::NEG_INFINITY,
+            consistent_since: None,
+            alarms_overridden: false,
+            n_overrides: 0,
             excluded_intervals: Vec::new(),
             alarm_times: Vec::new(),
             buffer: VecDeque::new(),
@@ -251,9 +284,18 @@ impl<'d> ResilientEstimator<'d> {
         self.n_resets
     }
 
+    /// How many times GPS was re-admitted by [`ResilientConfig::readmit_nis`] while the detector
+    /// alarmed.
+    #[must_use]
+    pub fn n_overrides(&self) -> usize {
+        self.n_overrides
+    }
+
     /// Whether inputs must be buffered for a rollback.
     fn buffering(&self) -> bool {
-        self.detector.is_some() && self.cfg.rollback == Rollback::ReplayWithoutGps && self.cfg.latency_s > 0.0
+        self.detector.is_some()
+            && self.cfg.rollback == Rollback::ReplayWithoutGps
+            && self.cfg.latency_s + self.cfg.rollback_lookback_s > 0.0
     }
 
     /// Residue times of every alarm the detector raised.
@@ -294,11 +336,16 @@ impl<'d> ResilientEstimator<'d> {
         }
         let t = meas.t;
         let mut decision = None;
+        let mut gps_nis = None;
         if let (Some(det), Some(_)) = (self.detector.as_mut(), meas.gps) {
             // alg:alg3 input A_i: the detector's verdict on this step's innovation against the
             // prior, computed on a copy so the real update can still choose to skip GPS.
             let mut probe = est.clone();
             if let Some(out) = probe.measure(meas, GpsFusion::Skip)? {
+                if self.cfg.readmit_nis.is_some() {
+                    let gps: Vec<String> = GPS_CHANNELS.iter().map(|c| (*c).to_owned()).collect();
+                    gps_nis = Some(select_channels(&out, &gps)?.2);
+                }
                 let (r, s, nis) = select_channels(&out, &self.cfg.detector_channels)?;
                 let step = ResidueStep { t, r_k: r.as_slice(), s_k: s.as_slice(), nis };
                 let d = det.update(&step).map_err(|source| FusionError::Detect { t, source })?;
@@ -310,6 +357,7 @@ impl<'d> ResilientEstimator<'d> {
             }
         }
         self.apply_decisions(t, meas.gps.is_some())?;
+        self.readmit_if_consistent(t, gps_nis)?;
         let reset = meas.gps.is_some() && self.reset_due(t);
         if reset {
             // Step 4 of the module doc: re-admit GPS with a position reset onto this fix.
@@ -325,7 +373,7 @@ impl<'d> ResilientEstimator<'d> {
         let fusion = if excluded { GpsFusion::Skip } else { GpsFusion::Fuse };
         if buffering {
             // Keep what a rollback to this step needs: the prior state and the measurements.
-            let horizon = t - self.cfg.latency_s - 1.0;
+            let horizon = t - self.cfg.latency_s - self.cfg.rollback_lookback_s - 1.0;
             while let Some(Event::Imu(ImuSample { t: t_old, .. }) | Event::Meas(Measurements { t: t_old, .. }, _)) =
                 self.buffer.front()
             {
@@ -364,7 +412,10 @@ impl<'d> ResilientEstimator<'d> {
                 break;
             }
             self.pending.pop_front();
-            if p.alarm {
+            if !p.alarm {
+                self.alarms_overridden = false;
+            }
+            if p.alarm && !self.alarms_overridden {
                 alarm_now = true;
                 self.last_alarm_avail = p.t_avail;
                 if self.excluded_since.is_none() {
@@ -392,15 +443,44 @@ impl<'d> ResilientEstimator<'d> {
         }
         Ok(())
     }
+
+    /// Step 4 of the module doc: while excluded, track the run of fixes whose GPS NIS passes
+    /// [`ResilientConfig::readmit_nis`]; after `hold_s` of them, re-admit GPS (with the usual
+    /// inflation) and leave the detector's alarms unheeded until it clears.
+    fn readmit_if_consistent(&mut self, t: f64, gps_nis: Option<f64>) -> Result<()> {
+        let (Some(gate), Some(t0), Some(nis)) = (self.cfg.readmit_nis, self.excluded_since, gps_nis) else {
+            if self.excluded_since.is_none() {
+                self.consistent_since = None;
+            }
+            return Ok(());
+        };
+        if nis > gate {
+            self.consistent_since = None;
+            return Ok(());
+        }
+        let since = *self.consistent_since.get_or_insert(t);
+        if t - since >= self.cfg.hold_s - 1e-9 {
+            if let Some(est) = self.est.as_mut() {
+                est.inflate_position_covariance(self.cfg.readmit_inflation_m2)?;
+            }
+            self.excluded_intervals.push((t0, t));
+            self.excluded_since = None;
+            self.consistent_since = None;
+            self.alarms_overridden = true;
+            self.n_overrides += 1;
+        }
+        Ok(())
+    }
 }
 
 impl ResilientEstimator<'_> {
-    /// Rewind to the state before the measurement group at `t_residue` and replay every
-    /// buffered input since, fusing no GPS (the fixes from `t_residue` on are the alarmed ones).
+    /// Rewind to the state before the first buffered measurement group at or after
+    /// `t_residue − rollback_lookback_s` and replay every buffered input since, fusing no GPS
+    /// (the fixes from `t_residue` on are the alarmed ones, those of the look-back the ones the
+    /// detection delay let through).
     fn rollback_to(&mut self, t_residue: f64) -> Result<()> {
-        let Some(start) =
-            self.buffer.iter().position(|e| matches!(e, Event::Meas(m, _) if (m.t - t_residue).abs() < 1e-9))
-        else {
+        let from = t_residue - self.cfg.rollback_lookback_s - 1e-9;
+        let Some(start) = self.buffer.iter().position(|e| matches!(e, Event::Meas(m, _) if m.t >= from)) else {
             return Ok(());
         };
         let Some(Event::Meas(_, ckpt)) = self.buffer.get(start) else { return Ok(()) };

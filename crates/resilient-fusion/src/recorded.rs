@@ -236,4 +236,45 @@ mod tests {
         assert!(err_at(19.0) > 8.0, "after the reset the estimate sits on the spoof: {}", err_at(19.0));
         assert!(err_at(29.0) < 2.0, "the second reset brings it back: {}", err_at(29.0));
     }
+
+    /// Alarms over `(t0, t1]` whatever the fix.
+    struct Stuck(f64, f64);
+
+    impl OnlineDetector for Stuck {
+        fn update(
+            &mut self,
+            step: &ekf_residue::series::ResidueStep<'_>,
+        ) -> std::result::Result<ekf_residue::OnlineDecision, ekf_residue::DetectError> {
+            let alarm = step.t > self.0 && step.t <= self.1;
+            Ok(ekf_residue::OnlineDecision { score: f64::from(u8::from(alarm)), alarm })
+        }
+
+        fn reset(&mut self) {}
+    }
+
+    #[test]
+    fn fixes_consistent_with_the_prediction_end_a_false_exclusion_but_not_a_spoof() {
+        let sim = SimConfig::default();
+        let flight = simulate(&sim, &square(&ShapeConfig::default()).unwrap(), 30.0, 4).unwrap();
+        let fc = FilterConfig::for_sim(ModelKind::ModelI, &sim);
+        let clean = AttackPlan::from_intervals(Vec::new()).unwrap();
+        let base = ResilientConfig { latency_s: 0.0, ..ResilientConfig::default() };
+        let gated = ResilientConfig { readmit_nis: Some(ResilientConfig::CHI2_3_99), ..base.clone() };
+        let lost = |tr: &LoopTrace| tr.steps.iter().filter(|s| s.gps_excluded).count();
+
+        // A false alarm held from 5 s to 25 s on an honest flight: without the gate GPS is
+        // dead-reckoned through it; with it, GPS is back after the 1 s hold.
+        let stuck = fly_recorded(&flight, &clean, &fc, &base, Some(Box::new(Stuck(5.0, 25.0)))).unwrap();
+        let freed = fly_recorded(&flight, &clean, &fc, &gated, Some(Box::new(Stuck(5.0, 25.0)))).unwrap();
+        assert!(lost(&stuck) >= 200, "{} fixes excluded", lost(&stuck));
+        assert!((10..=15).contains(&lost(&freed)), "{} fixes excluded", lost(&freed));
+        let max_err = |tr: &LoopTrace| tr.steps.iter().map(|s| s.error_m).fold(0.0, f64::max);
+        assert!(max_err(&freed) < max_err(&stuck), "{} vs {}", max_err(&freed), max_err(&stuck));
+
+        // A 10 m spoof never agrees with the prediction: every spoofed fix stays excluded.
+        let plan = bias_plan();
+        let guarded = fly_recorded(&flight, &plan, &fc, &gated, Some(Box::new(Oracle::new(plan.clone())))).unwrap();
+        assert!(guarded.steps.iter().filter(|s| s.attacked).all(|s| s.gps_excluded));
+        assert!(guarded.steps.iter().filter(|s| s.attacked).map(|s| s.error_m).fold(0.0, f64::max) < 3.0);
+    }
 }
