@@ -15,7 +15,7 @@
 //! - Thresholds: each fitted detector first picks its streaming threshold on those validation
 //!   residues (inside `fit`); the validation flights are then flown in the loop with the
 //!   detector at that threshold, and the threshold that maximises F1 on the scores of that
-//!   flight is the one the test flights use ([`loop_threshold`]). In the loop the detector's
+//!   flight is the one the test flights use ([`loop_setting`]). In the loop the detector's
 //!   own exclusions change the residues (after a false exclusion the estimate has drifted);
 //!   the second pick sees that, the first cannot.
 //! - Detectors: the fitted QUADFormer, LSTM, CNN, CUSUM, SPRT and χ² test; the PX4 EKF2 gate
