@@ -198,7 +198,6 @@ pub struct ResilientEstimator<'d> {
     consistent_since: Option<f64>,
     /// Alarms are unheeded until the detector clears (after a re-admission by consistency).
     alarms_overridden: bool,
-    n_overrides: usize,
     excluded_intervals: Vec<(f64, f64)>,
     alarm_times: Vec<f64>,
     buffer: VecDeque<Event>,
@@ -240,7 +239,6 @@ impl<'d> ResilientEstimator<'d> {
             last_alarm_avail: f64::NEG_INFINITY,
             consistent_since: None,
             alarms_overridden: false,
-            n_overrides: 0,
             excluded_intervals: Vec::new(),
             alarm_times: Vec::new(),
             buffer: VecDeque::new(),
@@ -282,13 +280,6 @@ impl<'d> ResilientEstimator<'d> {
     #[must_use]
     pub fn n_resets(&self) -> usize {
         self.n_resets
-    }
-
-    /// How many times GPS was re-admitted by [`ResilientConfig::readmit_nis`] while the detector
-    /// alarmed.
-    #[must_use]
-    pub fn n_overrides(&self) -> usize {
-        self.n_overrides
     }
 
     /// Whether inputs must be buffered for a rollback.
@@ -343,8 +334,7 @@ impl<'d> ResilientEstimator<'d> {
             let mut probe = est.clone();
             if let Some(out) = probe.measure(meas, GpsFusion::Skip)? {
                 if self.cfg.readmit_nis.is_some() {
-                    let gps: Vec<String> = GPS_CHANNELS.iter().map(|c| (*c).to_owned()).collect();
-                    gps_nis = Some(select_channels(&out, &gps)?.2);
+                    gps_nis = Some(select_channels(&out, &GPS_CHANNELS)?.2);
                 }
                 let (r, s, nis) = select_channels(&out, &self.cfg.detector_channels)?;
                 let step = ResidueStep { t, r_k: r.as_slice(), s_k: s.as_slice(), nis };
@@ -467,7 +457,6 @@ impl<'d> ResilientEstimator<'d> {
             self.excluded_since = None;
             self.consistent_since = None;
             self.alarms_overridden = true;
-            self.n_overrides += 1;
         }
         Ok(())
     }
@@ -506,14 +495,14 @@ impl ResilientEstimator<'_> {
 /// # Errors
 /// [`FusionError::MissingChannel`] when a channel is absent; [`FusionError::Detect`] when the
 /// sub-block is not positive definite.
-pub fn select_channels(out: &UpdateOutcome, channels: &[String]) -> Result<(Vec<f64>, Vec<f64>, f64)> {
+pub fn select_channels<S: AsRef<str>>(out: &UpdateOutcome, channels: &[S]) -> Result<(Vec<f64>, Vec<f64>, f64)> {
     let mut idx = Vec::with_capacity(channels.len());
-    for c in channels {
-        match out.channels.iter().position(|k| k == c) {
+    for c in channels.iter().map(AsRef::as_ref) {
+        match out.channels.iter().position(|k| *k == c) {
             Some(i) => idx.push(i),
             None => {
                 return Err(FusionError::MissingChannel {
-                    channel: c.clone(),
+                    channel: c.to_owned(),
                     t: out.t,
                     available: out.channels.iter().map(|s| (*s).to_string()).collect(),
                 });
