@@ -31,7 +31,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use attack_inject::AttackedSample;
-use attack_inject::{AttackConfig, AttackKind};
+use attack_inject::{AttackConfig, AttackInterval, AttackKind};
 use detection_metrics::{Confusion, best_f1_threshold};
 use ekf_residue::residues::{FilterConfig, GPS_CHANNELS};
 use ekf_residue::{Detector, LabelledResidues, OnlineDetector};
@@ -54,7 +54,7 @@ use crate::runner::{fit, read_json_cache, write_json_cache};
 use crate::table::to_csv;
 
 /// Bumped when the unit's computation changes, so cached units are recomputed.
-const UNIT_VERSION: u32 = 3;
+const UNIT_VERSION: u32 = 4;
 
 /// Seconds after an attack ends over which `max_error_after_m` is taken.
 pub const AFTER_WINDOW_S: f64 = 30.0;
@@ -199,6 +199,8 @@ pub struct ClosedLoopRow {
     pub threshold: Option<f64>,
     /// Rollback look-back of the fitted detectors in the loop, seconds ([`LoopSetting`]).
     pub lookback_s: Option<f64>,
+    /// Exclusion bound of the fitted detectors in the loop, seconds ([`exclusion_bound_s`]).
+    pub reset_after_s: Option<f64>,
     /// Per-fix precision of the alarms.
     pub precision: f64,
     /// Per-fix recall.
@@ -393,6 +395,24 @@ pub const LOOP_THRESHOLD_QUANTILES: [f64; 6] = [0.9, 0.95, 0.98, 0.99, 0.995, 0.
 /// Longest rollback look-back, seconds.
 pub const MAX_LOOKBACK_S: f64 = 5.0;
 
+/// Margin over the longest validation attack before an exclusion counts as stuck, seconds.
+pub const EXCLUSION_MARGIN_S: f64 = 1.0;
+
+/// The exclusion bound of the fitted detectors ([`LoopSetting::reset_after_s`]): the longest
+/// attack interval among the validation flights plus [`EXCLUSION_MARGIN_S`]. An alarm held
+/// longer than any attack the detector was validated on is taken to be stuck, and GPS is
+/// re-admitted with a position reset, as PX4 EKF2 does after 7 s of rejected fusion
+/// (`reset_timeout_max` in `EKF/common.h`). Without a bound, one false alarm that the detector keeps raising on the
+/// drift it causes leaves the estimate dead-reckoning for the rest of the flight. `None` when
+/// no validation flight is attacked.
+pub fn exclusion_bound_s(valid: &[PlannedFlight]) -> Option<f64> {
+    valid
+        .iter()
+        .flat_map(|f| f.plan.intervals().iter().map(AttackInterval::duration_s))
+        .reduce(f64::max)
+        .map(|d| d + EXCLUSION_MARGIN_S)
+}
+
 /// How a fitted detector flies in the loop, chosen on validation flights ([`loop_setting`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LoopSetting {
@@ -401,6 +421,9 @@ pub struct LoopSetting {
     /// How far before an alarmed fix the estimator rewinds
     /// ([`ResilientConfig::rollback_lookback_s`]), seconds.
     pub lookback_s: f64,
+    /// Exclusion time after which GPS is re-admitted with a position reset
+    /// ([`ResilientConfig::reset_after_s`]), seconds: [`exclusion_bound_s`].
+    pub reset_after_s: Option<f64>,
 }
 
 /// The loop setting of a fitted detector (module doc), from the trained families' validation
@@ -414,6 +437,8 @@ pub struct LoopSetting {
 /// 3. Fly them again at each candidate with that look-back; the threshold whose own alarms
 ///    have the highest per-fix F1 wins (ties: the higher threshold).
 ///
+/// Every flight, from step 1 on, bounds an exclusion by [`exclusion_bound_s`].
+///
 /// Each candidate is judged by the flight it produces, so a threshold whose false alarm starts
 /// a drift the detector then keeps alarming on (lock-out) loses to one that does not.
 ///
@@ -424,7 +449,8 @@ pub fn loop_setting(
     valid: &[PlannedFlight],
     filter: &FilterConfig,
 ) -> std::result::Result<LoopSetting, String> {
-    let fitted = LoopSetting { threshold: det.streaming_threshold(), lookback_s: 0.0 };
+    let reset_after_s = exclusion_bound_s(valid);
+    let fitted = LoopSetting { threshold: det.streaming_threshold(), lookback_s: 0.0, reset_after_s };
     let traces = fly_family(valid, filter, Pilot::Fitted(det, fitted), 0.0)?;
     let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
     let lookback_s = loop_metrics(&steps, false).delay_p90_s.unwrap_or(0.0).clamp(0.0, MAX_LOOKBACK_S);
@@ -444,16 +470,16 @@ pub fn loop_setting(
     let flown: Vec<(f64, f64)> = candidates
         .par_iter()
         .map(|&threshold| {
-            let traces = fly_family(valid, filter, Pilot::Fitted(det, LoopSetting { threshold, lookback_s }), 0.0)?;
-            let (alarms, labels): (Vec<bool>, Vec<bool>) =
-                traces.iter().flat_map(|tr| tr.steps.iter().map(|s| (s.alarm, s.attacked))).unzip();
-            Ok((threshold, Confusion::count(&alarms, &labels).f1()))
+            let setting = LoopSetting { threshold, lookback_s, reset_after_s };
+            let traces = fly_family(valid, filter, Pilot::Fitted(det, setting), 0.0)?;
+            let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
+            Ok((threshold, loop_metrics(&steps, false).f1))
         })
         .collect::<std::result::Result<_, String>>()?;
     flown
         .into_iter()
         .max_by(|a, b| a.1.total_cmp(&b.1).then(a.0.total_cmp(&b.0)))
-        .map(|(threshold, _)| LoopSetting { threshold, lookback_s })
+        .map(|(threshold, _)| LoopSetting { threshold, lookback_s, reset_after_s })
         .ok_or_else(|| format!("{} loop threshold: no candidate", det.name()))
 }
 
@@ -497,6 +523,7 @@ fn fly_family(
                     cfg.detector_channels = d.channels().to_vec();
                     cfg.readmit_nis = Some(ResilientConfig::CHI2_3_99);
                     cfg.rollback_lookback_s = setting.lookback_s;
+                    cfg.reset_after_s = setting.reset_after_s;
                     Some(d.online_at(setting.threshold))
                 }
                 Pilot::Px4Ekf2 => {
@@ -581,6 +608,7 @@ fn row(
         seed: unit.seed,
         threshold: setting.map(|s| s.threshold),
         lookback_s: setting.map(|s| s.lookback_s),
+        reset_after_s: setting.and_then(|s| s.reset_after_s),
         precision: m.precision,
         recall: m.recall,
         f1: m.f1,
@@ -996,6 +1024,7 @@ pub fn write_report_section(s: &mut String, rows: &[ClosedLoopRow]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use attack_inject::{AttackPlan, AttackShape};
 
     /// A 10 Hz flight of `n` fixes; `attacked(k)` and `alarm(k)` script the labels and alarms,
     /// the offset grows 1 m per attacked fix and the error is 0.1 m clean, 2 m attacked.
@@ -1028,8 +1057,14 @@ mod tests {
         // Attack on fixes 100..110; alarms on 103..110 (delay 0.3 s) and a clean false alarm
         // event on 200..205 (5 fixes excluded, 0.5 s of GPS lost).
         let f = steps(600, |k| (100..110).contains(&k), |k| (103..110).contains(&k) || (200..205).contains(&k));
-        let r =
-            row(UNIT, Family::Ramp, "X", 0.0, Some(LoopSetting { threshold: 1.0, lookback_s: 0.5 }), &[f.as_slice()]);
+        let r = row(
+            UNIT,
+            Family::Ramp,
+            "X",
+            0.0,
+            Some(LoopSetting { threshold: 1.0, lookback_s: 0.5, reset_after_s: None }),
+            &[f.as_slice()],
+        );
         assert_eq!((r.precision, r.recall), (7.0 / 12.0, 0.7));
         assert!((r.delay_median_s.unwrap() - 0.3).abs() < 1e-9);
         assert_eq!(r.n_intervals, 1);
@@ -1043,6 +1078,22 @@ mod tests {
         let r = row(UNIT, Family::Ramp, "X", 0.0, None, &[early.as_slice(), f.as_slice()]);
         assert_eq!(r.alarmed_before_3m, Some(0.5), "one of the two drifts caught before 3 m");
         assert_eq!(row(UNIT, Family::Bias, "X", 0.0, None, &[f.as_slice()]).alarmed_before_3m, None);
+    }
+
+    #[test]
+    fn the_exclusion_bound_is_the_longest_validation_attack_plus_the_margin() {
+        let planned = |spans: &[(f64, f64)]| PlannedFlight {
+            split: Split::Valid,
+            index: 0,
+            flight: Flight::default(),
+            plan: AttackPlan::from_intervals(
+                spans.iter().map(|&(t0, t1)| AttackInterval { t0, t1, shape: AttackShape::Freeze }).collect(),
+            )
+            .unwrap(),
+        };
+        assert_eq!(exclusion_bound_s(&[planned(&[])]), None);
+        let valid = [planned(&[(10.0, 14.0), (30.0, 32.0)]), planned(&[(5.0, 25.0)]), planned(&[])];
+        assert!((exclusion_bound_s(&valid).unwrap() - (20.0 + EXCLUSION_MARGIN_S)).abs() < 1e-12);
     }
 
     #[test]

@@ -25,7 +25,10 @@
 //! 5. Optionally, as PX4 EKF2 does (`reset_timeout_max` = 7 s in `EKF/common.h`), GPS that has
 //!    been excluded for [`ResilientConfig::reset_after_s`] is re-admitted with a position
 //!    reset onto the fix ([`Estimator::reset_position`]), so the estimate jumps onto whatever
-//!    the receiver reports.
+//!    the receiver reports. The reset is a decision to trust GPS: as after step 4, the
+//!    detector's alarms go unheeded until it clears once, and no rollback rewinds past it, so
+//!    an alarm stuck on the drift its own exclusion caused costs one bounded exclusion, not
+//!    one every `reset_after_s`.
 //!
 //! Positions in local ENU metres, times in seconds.
 
@@ -350,13 +353,15 @@ impl<'d> ResilientEstimator<'d> {
         self.readmit_if_consistent(t, gps_nis)?;
         let reset = meas.gps.is_some() && self.reset_due(t);
         if reset {
-            // Step 4 of the module doc: re-admit GPS with a position reset onto this fix.
+            // Step 5 of the module doc: re-admit GPS with a position reset onto this fix.
             if let Some(t0) = self.excluded_since.take() {
                 self.excluded_intervals.push((t0, t));
             }
             if let (Some(est), Some(p)) = (self.est.as_mut(), meas.gps) {
                 est.reset_position(&p)?;
             }
+            self.alarms_overridden = true;
+            self.buffer.clear();
             self.n_resets += 1;
         }
         let excluded = self.excluded_since.is_some();

@@ -277,4 +277,28 @@ mod tests {
         assert!(guarded.steps.iter().filter(|s| s.attacked).all(|s| s.gps_excluded));
         assert!(guarded.steps.iter().filter(|s| s.attacked).map(|s| s.error_m).fold(0.0, f64::max) < 3.0);
     }
+
+    #[test]
+    fn a_bounded_exclusion_resets_once_and_heeds_no_alarm_until_the_detector_clears() {
+        let sim = SimConfig::default();
+        let flight = simulate(&sim, &square(&ShapeConfig::default()).unwrap(), 30.0, 4).unwrap();
+        let fc = FilterConfig::for_sim(ModelKind::ModelI, &sim);
+        let clean = AttackPlan::from_intervals(Vec::new()).unwrap();
+        // A false alarm held from 5 s to 25 s, a 5 s bound and a look-back the reset must not
+        // be rewound by.
+        let cfg = ResilientConfig {
+            latency_s: 0.0,
+            reset_after_s: Some(5.0),
+            rollback_lookback_s: 2.0,
+            ..ResilientConfig::default()
+        };
+        let tr = fly_recorded(&flight, &clean, &fc, &cfg, Some(Box::new(Stuck(5.0, 25.0)))).unwrap();
+        let resets: Vec<f64> = tr.steps.iter().filter(|s| s.reset).map(|s| s.t).collect();
+        assert_eq!(resets.len(), 1, "one reset, not one every 5 s: {resets:?}");
+        assert!((resets[0] - 10.1).abs() < 1e-6, "{resets:?}");
+        let excluded: Vec<f64> = tr.steps.iter().filter(|s| s.gps_excluded).map(|s| s.t).collect();
+        assert!(excluded.iter().all(|&t| t > 5.0 && t < 10.1 + 1e-6), "{excluded:?}");
+        let err_at = |t: f64| tr.steps.iter().find(|s| (s.t - t).abs() < 1e-6).map_or(f64::NAN, |s| s.error_m);
+        assert!(err_at(15.0) < 2.0, "GPS fused after the reset: {}", err_at(15.0));
+    }
 }
