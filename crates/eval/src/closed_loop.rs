@@ -18,6 +18,8 @@
 //!   flight is the one the test flights use ([`loop_setting`]). In the loop the detector's
 //!   own exclusions change the residues (after a false exclusion the estimate has drifted);
 //!   the second pick sees that, the first cannot.
+//! - Exclusions by a fitted detector last at most the longest validation attack plus 1 s
+//!   ([`exclusion_bound_s`]); then GPS is re-admitted with a position reset, as EKF2 does.
 //! - Detectors: the fitted QUADFormer, LSTM, CNN, CUSUM, SPRT and χ² test; the PX4 EKF2 gate
 //!   (5σ per axis, reset onto GPS after 7 s of rejection); `None` (GPS always fused) and
 //!   `Oracle` (exclusion exactly on attacked fixes). Fitted detectors fly at decision latency

@@ -183,4 +183,10 @@ fn fuse_flies_a_flight_folder_in_the_loop() {
     // A scenario and a folder at once is refused.
     let o = quadformer(&["fuse", "--scenario", "eight", "--in", s(&fixture), "--out", s(&out)]);
     assert!(!o.status.success());
+    // A negative exclusion bound is refused by name.
+    let bad = dir.path().join("bad");
+    let o = quadformer(&["fuse", "--in", s(&fixture), "--detector", "nis", "--reset-after-s=-1", "--out", s(&bad)]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("reset_after_s"), "{}", stderr(&o));
+    assert!(!bad.exists());
 }
