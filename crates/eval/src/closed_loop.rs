@@ -404,9 +404,9 @@ pub const EXCLUSION_MARGIN_S: f64 = 1.0;
 /// attack interval among the validation flights plus [`EXCLUSION_MARGIN_S`]. An alarm held
 /// longer than any attack the detector was validated on is taken to be stuck, and GPS is
 /// re-admitted with a position reset, as PX4 EKF2 does after 7 s of rejected fusion
-/// (`reset_timeout_max` in `EKF/common.h`). Without a bound, one false alarm that the detector keeps raising on the
-/// drift it causes leaves the estimate dead-reckoning for the rest of the flight. `None` when
-/// no validation flight is attacked.
+/// (`reset_timeout_max` in `EKF/common.h`). Without a bound, one false alarm that the
+/// detector keeps raising on the drift it causes leaves the estimate dead-reckoning for the
+/// rest of the flight. `None` when no validation flight is attacked.
 pub fn exclusion_bound_s(valid: &[PlannedFlight]) -> Option<f64> {
     valid
         .iter()
