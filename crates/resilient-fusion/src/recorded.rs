@@ -186,6 +186,13 @@ mod tests {
     use uav_dynamics::sim::{SimConfig, simulate};
     use uav_dynamics::trajectory::{ShapeConfig, square};
 
+    /// The 30 s square flight of seed 4 every test flies, and the filter of `model` for it.
+    fn square_flight(model: ModelKind) -> (Flight, FilterConfig) {
+        let sim = SimConfig::default();
+        let flight = simulate(&sim, &square(&ShapeConfig::default()).unwrap(), 30.0, 4).unwrap();
+        (flight, FilterConfig::for_sim(model, &sim))
+    }
+
     fn bias_plan() -> AttackPlan {
         AttackPlan::from_intervals(vec![AttackInterval {
             t0: 10.0,
@@ -197,9 +204,7 @@ mod tests {
 
     #[test]
     fn the_oracle_keeps_the_estimate_while_the_open_loop_follows_the_spoof() {
-        let sim = SimConfig::default();
-        let flight = simulate(&sim, &square(&ShapeConfig::default()).unwrap(), 30.0, 4).unwrap();
-        let fc = FilterConfig::for_sim(ModelKind::ModelII, &sim);
+        let (flight, fc) = square_flight(ModelKind::ModelII);
         let plan = bias_plan();
         let open = fly_recorded(&flight, &plan, &fc, &ResilientConfig::default(), None).unwrap();
         let oracle_cfg = ResilientConfig { latency_s: 0.0, hold_s: 0.0, ..ResilientConfig::default() };
@@ -219,9 +224,7 @@ mod tests {
 
     #[test]
     fn the_px4_gate_rejects_for_seven_seconds_then_resets_onto_the_spoof() {
-        let sim = SimConfig::default();
-        let flight = simulate(&sim, &square(&ShapeConfig::default()).unwrap(), 30.0, 4).unwrap();
-        let fc = FilterConfig::for_sim(ModelKind::ModelII, &sim);
+        let (flight, fc) = square_flight(ModelKind::ModelII);
         let plan = bias_plan();
         let px4 = ResilientConfig { latency_s: 0.0, hold_s: 0.0, reset_after_s: Some(7.0), ..Default::default() };
         let gate = crate::gates::InnovationGate::new(crate::gates::InnovationGate::PX4_GAMMA).unwrap();
@@ -254,9 +257,7 @@ mod tests {
 
     #[test]
     fn fixes_consistent_with_the_prediction_end_a_false_exclusion_but_not_a_spoof() {
-        let sim = SimConfig::default();
-        let flight = simulate(&sim, &square(&ShapeConfig::default()).unwrap(), 30.0, 4).unwrap();
-        let fc = FilterConfig::for_sim(ModelKind::ModelI, &sim);
+        let (flight, fc) = square_flight(ModelKind::ModelI);
         let clean = AttackPlan::from_intervals(Vec::new()).unwrap();
         let base = ResilientConfig { latency_s: 0.0, ..ResilientConfig::default() };
         let gated = ResilientConfig { readmit_nis: Some(ResilientConfig::CHI2_3_99), ..base.clone() };
@@ -280,9 +281,7 @@ mod tests {
 
     #[test]
     fn a_bounded_exclusion_resets_once_and_heeds_no_alarm_until_the_detector_clears() {
-        let sim = SimConfig::default();
-        let flight = simulate(&sim, &square(&ShapeConfig::default()).unwrap(), 30.0, 4).unwrap();
-        let fc = FilterConfig::for_sim(ModelKind::ModelI, &sim);
+        let (flight, fc) = square_flight(ModelKind::ModelI);
         let clean = AttackPlan::from_intervals(Vec::new()).unwrap();
         // A false alarm held from 5 s to 25 s, a 5 s bound and a look-back the reset must not
         // be rewound by.
