@@ -1,7 +1,7 @@
 //! Fits one method on one cell of the experiment matrix and prints what model selection saw:
-//! the training history (learning methods), the validation F1 at the chosen threshold, and the
-//! ROC AUC on the validation and test splits. This is the tool behind the measured choices in
-//! docs/decisions/043 and 053.
+//! the training history (learning methods), the validation F1 at the chosen threshold, the
+//! ROC AUC on the validation and test splits, and the F1 of the streaming scores on both.
+//! This is the tool behind the measured choices in docs/decisions/043 and 053.
 //!
 //! ```text
 //! cargo run --release -p eval --example fit_cell -- <method> <cell> [--seed N] [--config FILE.toml] [--out DIR]
@@ -95,7 +95,20 @@ fn main() -> Result<()> {
     let (test_f1, test_auc) = f1_and_auc(detector.as_ref(), &test)?;
     println!("{} on {} seed {seed}: fit {fit_s:.1} s", method.name(), cell.slug());
     println!("valid F1 {valid_f1:.3}, valid ROC AUC {valid_auc:.3}; test F1 {test_f1:.3}, test ROC AUC {test_auc:.3}");
+    let (valid_f1, test_f1) = (streaming_f1(detector.as_ref(), &valid)?, streaming_f1(detector.as_ref(), &test)?);
+    println!("streaming: valid F1 {valid_f1:.3}, test F1 {test_f1:.3}");
     Ok(())
+}
+
+/// F1 of the streaming scores at the detector's streaming threshold over a split's labelled
+/// flights.
+fn streaming_f1(det: &dyn Detector, split: &LabelledResidues) -> Result<f64> {
+    let (mut alarms, mut labels) = (Vec::new(), Vec::new());
+    for (series, l) in split.labelled() {
+        alarms.extend(det.score_streaming(series)?.into_iter().map(|s| s > det.streaming_threshold()));
+        labels.extend_from_slice(l);
+    }
+    Ok(confusion(&alarms, &labels)?.f1())
 }
 
 /// F1 at the detector's threshold and ROC AUC of its scores over a split's labelled flights.
