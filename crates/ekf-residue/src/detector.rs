@@ -149,6 +149,40 @@ impl OnlineDetector for Rethresholded<'_> {
     }
 }
 
+/// An online detector whose alarm stands only once the inner detector has alarmed on `k`
+/// consecutive steps (k-of-k confirmation, the persistence check of fault detection: one
+/// outlying step does not raise an alarm, a run of them does). The score is the inner one;
+/// `k = 1` (or 0) is the inner detector itself.
+pub struct Confirmed<'a> {
+    /// The detector whose raw alarms are confirmed.
+    pub inner: Box<dyn OnlineDetector + 'a>,
+    /// Consecutive raw alarms an alarm needs.
+    pub k: usize,
+    /// Raw alarms in a row up to the last step.
+    run: usize,
+}
+
+impl<'a> Confirmed<'a> {
+    /// Confirms the alarms of `inner` over `k` consecutive steps.
+    #[must_use]
+    pub fn new(inner: Box<dyn OnlineDetector + 'a>, k: usize) -> Self {
+        Self { inner, k, run: 0 }
+    }
+}
+
+impl OnlineDetector for Confirmed<'_> {
+    fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
+        let d = self.inner.update(step)?;
+        self.run = if d.alarm { self.run.saturating_add(1) } else { 0 };
+        Ok(OnlineDecision { score: d.score, alarm: self.run >= self.k.max(1) })
+    }
+
+    fn reset(&mut self) {
+        self.inner.reset();
+        self.run = 0;
+    }
+}
+
 /// Streaming adapter that re-scores a sliding window of recent steps with a batch
 /// [`Detector`] and reports the newest step.
 pub struct WindowedOnline<'a, D: Detector + ?Sized> {
@@ -202,5 +236,51 @@ impl<D: Detector + ?Sized> OnlineDetector for WindowedOnline<'_, D> {
         self.t.clear();
         self.r.clear();
         self.s.clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Alarms when the step's single residue is above 1; the score is the residue.
+    struct Above1;
+
+    impl OnlineDetector for Above1 {
+        fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
+            Ok(OnlineDecision { score: step.r_k[0], alarm: step.r_k[0] > 1.0 })
+        }
+
+        fn reset(&mut self) {}
+    }
+
+    fn alarms(det: &mut dyn OnlineDetector, r: &[f64]) -> Vec<bool> {
+        let s = [1.0];
+        r.iter()
+            .enumerate()
+            .map(|(i, x)| {
+                let step = ResidueStep { t: i as f64, r_k: std::slice::from_ref(x), s_k: &s, nis: x * x };
+                det.update(&step).unwrap().alarm
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_confirmed_alarm_needs_k_consecutive_raw_alarms() {
+        let r = [2.0, 0.0, 2.0, 2.0, 2.0, 0.0, 2.0, 2.0];
+        let mut one = Confirmed::new(Box::new(Above1), 1);
+        assert_eq!(alarms(&mut one, &r), r.iter().map(|&x| x > 1.0).collect::<Vec<_>>());
+        let mut two = Confirmed::new(Box::new(Above1), 2);
+        assert_eq!(alarms(&mut two, &r), [false, false, false, true, true, false, false, true]);
+        let mut three = Confirmed::new(Box::new(Above1), 3);
+        assert_eq!(alarms(&mut three, &r), [false, false, false, false, true, false, false, false]);
+    }
+
+    #[test]
+    fn reset_forgets_the_run() {
+        let mut two = Confirmed::new(Box::new(Above1), 2);
+        assert_eq!(alarms(&mut two, &[2.0]), [false]);
+        two.reset();
+        assert_eq!(alarms(&mut two, &[2.0, 2.0]), [false, true]);
     }
 }

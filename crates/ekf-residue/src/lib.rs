@@ -64,7 +64,9 @@ pub mod noise_check;
 pub mod residues;
 pub mod series;
 
-pub use detector::{Detector, Fit, OnlineDecision, OnlineDetector, Rethresholded, WindowedOnline, check_channels};
+pub use detector::{
+    Confirmed, Detector, Fit, OnlineDecision, OnlineDetector, Rethresholded, WindowedOnline, check_channels,
+};
 pub use ekf::{CovarianceUpdate, DivergenceGuard, DynInnovation, Ekf, Innovation};
 pub use error::{DetectError, FilterError, ResidueError};
 pub use model1_filter::{ImuNoise, Model1Filter};

@@ -98,6 +98,11 @@ pub struct MatrixConfig {
     pub sweep_sigma: Vec<f64>,
     /// Label fractions of the semi-supervision ablation. Default 1%, 10%, 100% (decision 005).
     pub ablation_fractions: Vec<f64>,
+    /// Candidates of the closed loop's alarm confirmation, consecutive raw alarms before an
+    /// alarm stands; each fitted detector flies its validation flights at each and keeps the
+    /// best ([`crate::closed_loop::loop_setting`]). Default `[1]`, every raw alarm
+    /// (docs/decisions/091-closed-loop.md).
+    pub loop_confirm: Vec<usize>,
 }
 
 impl Default for MatrixConfig {
@@ -109,6 +114,7 @@ impl Default for MatrixConfig {
             model2_channels: Model2Channels::VoGps,
             sweep_sigma: vec![0.5, 1.0, 2.0, 3.0, 5.0, 10.0],
             ablation_fractions: vec![0.01, 0.1, 1.0],
+            loop_confirm: vec![1],
         }
     }
 }
