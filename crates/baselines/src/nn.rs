@@ -147,6 +147,7 @@ impl Default for CnnConfig {
                 lr_decay: 1.0,
                 patience: 4,
                 mirror: true,
+                mix: 0.5,
                 ..TrainConfig::default()
             },
             hidden: 32,

@@ -43,6 +43,19 @@ impl ResidueStep<'_> {
     pub fn dim(&self) -> usize {
         self.r_k.len()
     }
+
+    /// The residue whitened by its whole covariance, `u = L⁻¹ r_k` with `S_k = L Lᵀ`
+    /// (Cholesky), so that `|u|² = NIS_k`; `None` if `S_k` is not `m × m` positive definite
+    /// (a step of a [`ResidueSeries`] always is).
+    pub fn whitened(&self) -> Option<Vec<f64>> {
+        let m = self.dim();
+        if self.s_k.len() != m * m {
+            return None;
+        }
+        let chol = DMatrix::from_row_slice(m, m, self.s_k).cholesky()?;
+        let u = chol.l().solve_lower_triangular(&DVectorView::from_slice(self.r_k, m).into_owned())?;
+        Some(u.iter().copied().collect())
+    }
 }
 
 impl ResidueSeries {
@@ -368,6 +381,22 @@ mod tests {
     fn series(t: Vec<f64>, r: Vec<Vec<f64>>) -> Result<ResidueSeries, ResidueError> {
         let n = r.len();
         ResidueSeries::new(t, vec!["a".into(), "b".into()], r, vec![DMatrix::from_diagonal_element(2, 2, 4.0); n])
+    }
+
+    #[test]
+    fn whitened_residue_has_the_nis_as_squared_norm() {
+        let s = ResidueSeries::from_flat(
+            vec![0.0],
+            vec!["a".into(), "b".into()],
+            vec![1.5, -0.5],
+            vec![2.0, 0.6, 0.6, 1.0],
+        )
+        .unwrap();
+        let step = s.step(0).unwrap();
+        let u = step.whitened().unwrap();
+        assert!((u.iter().map(|v| v * v).sum::<f64>() - step.nis).abs() < 1e-12);
+        // L is lower triangular: the first entry is r₀/√S₀₀.
+        assert!((u[0] - 1.5 / 2f64.sqrt()).abs() < 1e-12);
     }
 
     #[test]

@@ -453,6 +453,7 @@ registry! {
             self.train.max_windows_per_epoch = Some(256);
             self.train.labelled_share = Some(0.5);
             self.train.mirror = true;
+            self.train.mix = 0.5;
         }
 
         fn seed(&mut self, seed: u64) {

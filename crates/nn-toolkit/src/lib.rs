@@ -73,4 +73,4 @@ pub use alloc::tune_allocator;
 pub use error::{NnError, Result};
 pub use init::init_vars_seeded;
 pub use train::{EpochStats, TrainConfig, TrainReport, TrainableModel, train, train_on};
-pub use window::{Batch, Features, Normaliser, SeriesWindows, WindowConfig, Windows};
+pub use window::{Batch, Features, Mix, Normaliser, SeriesWindows, WindowConfig, Windows};

@@ -22,7 +22,7 @@ use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
-use crate::window::{Batch, Windows};
+use crate::window::{Batch, Mix, Windows};
 
 /// Budget of the largest activation tensor of a mini-batch, in numbers (1 GiB of `f32`).
 pub const MAX_ACTIVATIONS: u64 = 1 << 28;
@@ -74,6 +74,12 @@ pub struct TrainConfig {
     /// configurations turn it on (docs/decisions/044-whitened-inputs.md).
     #[serde(default)]
     pub mirror: bool,
+    /// Probability that a labelled training window is mixed with another labelled window
+    /// ([`Windows::batch_augmented`]) at a weight `c` drawn uniformly from
+    /// [`MIX_MIN_SCALE`]`..1`: attacks of every amplitude from the few labelled flights
+    /// (docs/decisions/047-mixed-windows.md). Default 0 (none).
+    #[serde(default)]
+    pub mix: f64,
     /// Seed of the shuffling generator. Default 0.
     pub seed: u64,
     /// Show a progress bar with the loss per epoch on stderr. Default true.
@@ -92,11 +98,17 @@ impl Default for TrainConfig {
             max_windows_per_epoch: None,
             labelled_share: None,
             mirror: false,
+            mix: 0.0,
             seed: 0,
             progress: true,
         }
     }
 }
+
+/// Smallest weight `c` of a window mixed with another ([`TrainConfig::mix`]): a labelled
+/// attack keeps at least a quarter of its amplitude, so it stays within the amplitudes of the
+/// data (the attack matrix spans 1.5–30 m, docs/decisions/030-attack-model-and-planning.md).
+pub const MIX_MIN_SCALE: f64 = 0.25;
 
 /// Budget of every mini-batch size (training and scoring): a batch is allocated whole.
 pub const MAX_BATCH_SIZE: usize = 65_536;
@@ -133,6 +145,9 @@ impl TrainConfig {
             && !(0.0..=1.0).contains(&share)
         {
             return bad("train.labelled_share", "must be in [0, 1]");
+        }
+        if !(0.0..=1.0).contains(&self.mix) {
+            return bad("train.mix", "must be in [0, 1]");
         }
         Ok(())
     }
@@ -230,6 +245,29 @@ fn epoch_windows(windows: &Windows, per_epoch: usize, share: Option<f64>, rng: &
     all
 }
 
+/// Which windows of `chunk` are mixed, and with what ([`TrainConfig::mix`]): each labelled
+/// one (a member of `labelled`) with probability `p`, with another labelled window drawn
+/// uniformly. Draws nothing when `p` is 0, so a run without mixing is unchanged.
+fn mixes_of(chunk: &[usize], labelled: &[usize], p: f64, rng: &mut StdRng) -> Vec<Option<Mix>> {
+    if p <= 0.0 || labelled.len() < 2 {
+        return Vec::new();
+    }
+    chunk
+        .iter()
+        .map(|w| {
+            if labelled.binary_search(w).is_err() || !rng.random_bool(p) {
+                return None;
+            }
+            let mut with = labelled[rng.random_range(0..labelled.len())];
+            if with == *w {
+                with = labelled[(labelled.binary_search(w).unwrap_or(0) + 1) % labelled.len()];
+            }
+            let scale = rng.random_range(MIX_MIN_SCALE..=1.0) as f32;
+            Some(Mix { with, scale })
+        })
+        .collect()
+}
+
 /// Trains the variables of `varmap` through `model` on `windows` (module docs for the loop),
 /// calling `valid(model)` after every epoch; lower validation metric is better. The batches are
 /// built on the CPU: [`train_on`] with [`Device::Cpu`].
@@ -299,6 +337,18 @@ fn train_loop<M: TrainableModel + ?Sized, E>(
     if windows.is_empty() {
         return Err(NnError::Data { msg: "no training windows".into() }.into());
     }
+    let labelled: Vec<usize> = if cfg.mix > 0.0 {
+        if !windows.can_mix() {
+            return Err(NnError::Config {
+                field: "train.mix",
+                msg: "mixing windows needs whitened features (window.features)".into(),
+            }
+            .into());
+        }
+        (0..windows.len()).filter(|&w| windows.is_labelled(w)).collect()
+    } else {
+        Vec::new()
+    };
     let params = ParamsAdamW { lr: cfg.lr, weight_decay: cfg.weight_decay, ..ParamsAdamW::default() };
     let mut opt = AdamW::new(varmap.all_vars(), params)?;
     let per_epoch = cfg.max_windows_per_epoch.unwrap_or(usize::MAX).min(windows.len());
@@ -334,7 +384,8 @@ fn train_loop<M: TrainableModel + ?Sized, E>(
         for (b, chunk) in idx.chunks(cfg.batch_size).enumerate() {
             let mirrored: Vec<bool> =
                 if cfg.mirror { chunk.iter().map(|_| rng.random_bool(0.5)).collect() } else { Vec::new() };
-            let batch = windows.batch_mirrored(chunk, &mirrored, device)?;
+            let mixes = mixes_of(chunk, &labelled, cfg.mix, &mut rng);
+            let batch = windows.batch_augmented(chunk, &mirrored, &mixes, device)?;
             for phase in 0..model.n_phases() {
                 let loss = model.loss(&batch, phase)?;
                 let v = f64::from(loss.to_scalar::<f32>()?);

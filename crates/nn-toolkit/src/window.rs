@@ -65,14 +65,40 @@ impl Features {
                     let var = s_k.get(i * m + i).copied().unwrap_or(1.0);
                     *o = if var > 0.0 { r / var.sqrt() } else { *r };
                 }
-                if let Some(last) = out.get_mut(m) {
-                    *last = nis.max(0.0).sqrt();
-                }
-                if self == Features::WhitenedLog {
-                    for o in out.iter_mut() {
-                        *o = o.signum() * o.abs().ln_1p();
-                    }
-                }
+                self.finish_whitened(m, nis, out);
+            }
+        }
+    }
+
+    /// Whether the features of a step are a function of its whitened residue
+    /// `z_i = r_i/√(S_k)_ii` and `NIS_k` alone ([`Features::from_whitened`]), which is what
+    /// mixing two windows needs ([`Windows::batch_augmented`]).
+    pub fn is_whitened(self) -> bool {
+        self != Features::Raw
+    }
+
+    /// Writes the features of a step from its whitened residue `z` (`m` values) and `NIS_k`
+    /// into `out` (length [`Features::dim`]); the same as [`Features::compute`] for a step
+    /// with those values. Leaves `out` untouched for [`Features::Raw`], which is not a
+    /// function of them.
+    pub fn from_whitened(self, z: &[f64], nis: f64, out: &mut [f64]) {
+        if self.is_whitened() {
+            for (o, v) in out.iter_mut().zip(z) {
+                *o = *v;
+            }
+            self.finish_whitened(z.len(), nis, out);
+        }
+    }
+
+    /// `√NIS_k` after the `m` whitened channels, then the compression of
+    /// [`Features::WhitenedLog`].
+    fn finish_whitened(self, m: usize, nis: f64, out: &mut [f64]) {
+        if let Some(last) = out.get_mut(m) {
+            *last = nis.max(0.0).sqrt();
+        }
+        if self == Features::WhitenedLog {
+            for o in out.iter_mut() {
+                *o = o.signum() * o.abs().ln_1p();
             }
         }
     }
@@ -321,9 +347,23 @@ pub struct Windows {
     dim: usize,
     /// [`Normaliser::mirror_centres`] of the normaliser the windows were made with.
     mirror: Vec<Option<f32>>,
+    /// The normaliser the windows were made with (for features of mixed windows).
+    norm: Option<Normaliser>,
     x: Vec<f32>,
     y: Vec<f32>,
     mask: Vec<f32>,
+    /// Per step, the whitened residue `z_i = r_i/√(S_k)_ii` and `u = L⁻¹ r_k` (`|u|² = NIS_k`),
+    /// `2m` values, for a whitened feature map ([`Features::is_whitened`]); empty otherwise.
+    whitened: Vec<f32>,
+}
+
+/// The mixing of one window of a batch with another ([`Windows::batch_augmented`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Mix {
+    /// The other window.
+    pub with: usize,
+    /// Weight `c ∈ (0, 1]` of the window itself; the other gets `√(1 − c²)`.
+    pub scale: f32,
 }
 
 /// One mini-batch: inputs `x` (`b × l × m`), labels `y` and mask (`b × l`), all `f32`.
@@ -381,6 +421,9 @@ impl Windows {
             return Err(NnError::Data { msg: format!("{} labels for {} steps", l.len(), series.len()) });
         }
         self.mirror = norm.mirror_centres();
+        if self.norm.as_ref() != Some(norm) {
+            self.norm = Some(norm.clone());
+        }
         let (l, m) = (self.len, self.dim);
         let sw = SeriesWindows::new(series.len(), l, stride);
         if sw.starts.is_empty() {
@@ -408,7 +451,26 @@ impl Windows {
             self.y.extend_from_slice(&ys[s0..s0 + l]);
             self.mask.extend_from_slice(&ms[s0..s0 + l]);
         }
+        if norm.features.is_whitened() {
+            let w = 2 * series.dim();
+            let mut zu = vec![0.0f32; n_pad * w];
+            for (k, row) in zu.chunks_exact_mut(w).enumerate() {
+                if let Some(step) = series.step(k.saturating_sub(sw.pad)) {
+                    whitened_row(&step, row);
+                }
+            }
+            for &s0 in &sw.starts {
+                self.whitened.extend_from_slice(&zu[s0 * w..(s0 + l) * w]);
+            }
+        }
         Ok(sw)
+    }
+
+    /// Whether windows can be mixed ([`Windows::batch_augmented`]): made with a whitened
+    /// feature map, and every window with its whitened residues.
+    pub fn can_mix(&self) -> bool {
+        let m2 = self.norm.as_ref().map_or(0, |n| 2 * n.channels.len());
+        m2 > 0 && self.whitened.len() == self.len() * self.len * m2
     }
 
     /// Number of windows.
@@ -475,17 +537,60 @@ impl Windows {
     /// # Errors
     /// As [`Windows::batch`].
     pub fn batch_mirrored(&self, idx: &[usize], mirrored: &[bool], device: &Device) -> Result<Batch> {
+        self.batch_augmented(idx, mirrored, &[], device)
+    }
+
+    /// The windows `idx` as a [`Batch`], window `idx[i]` mixed with another where `mixes[i]`
+    /// is `Some`, then mirrored where `mirrored[i]` is true (short slices leave the rest as
+    /// they are).
+    ///
+    /// Mixing window `a` with window `b` at weight `c` makes, at every step, the whitened
+    /// residue `c·z_a + √(1 − c²)·z_b` (and `u` alike, so `NIS = |u|²`), and its features.
+    /// For a linearised filter the innovation of an attacked flight is the clean innovation
+    /// plus a response linear in the offset, and clean innovations of equal covariance keep
+    /// their covariance under these weights; so the mix is a flight whose attacks are those
+    /// of `a` scaled by `c` and those of `b` by `√(1 − c²)`. A step is attacked if it is in
+    /// either and its label is known if it is known in both. It exists to give the few
+    /// labelled flights attacks of every amplitude (docs/decisions/047-mixed-windows.md).
+    ///
+    /// # Errors
+    /// As [`Windows::batch`]; [`NnError::Data`] for a mix of windows that cannot be mixed
+    /// ([`Windows::can_mix`]) or a weight outside `(0, 1]`.
+    pub fn batch_augmented(
+        &self,
+        idx: &[usize],
+        mirrored: &[bool],
+        mixes: &[Option<Mix>],
+        device: &Device,
+    ) -> Result<Batch> {
         let (l, m, n) = (self.len, self.dim, self.len());
         let b = idx.len();
         let mut x = Vec::with_capacity(b * l * m);
         let mut y = Vec::with_capacity(b * l);
         let mut mask = Vec::with_capacity(b * l);
         for (i, &w) in idx.iter().enumerate() {
-            if w >= n {
-                return Err(NnError::Data { msg: format!("window index {w} out of range ({n} windows)") });
+            let mix = mixes.get(i).copied().flatten();
+            for v in std::iter::once(w).chain(mix.map(|mx| mx.with)) {
+                if v >= n {
+                    return Err(NnError::Data { msg: format!("window index {v} out of range ({n} windows)") });
+                }
             }
             let start = x.len();
-            x.extend_from_slice(&self.x[w * l * m..(w + 1) * l * m]);
+            match mix {
+                None => {
+                    x.extend_from_slice(&self.x[w * l * m..(w + 1) * l * m]);
+                    y.extend_from_slice(&self.y[w * l..(w + 1) * l]);
+                    mask.extend_from_slice(&self.mask[w * l..(w + 1) * l]);
+                }
+                Some(mx) => {
+                    x.resize(start + l * m, 0.0);
+                    self.mix_into(w, mx, &mut x[start..])?;
+                    let (ya, yb) = (&self.y[w * l..(w + 1) * l], &self.y[mx.with * l..(mx.with + 1) * l]);
+                    y.extend(ya.iter().zip(yb).map(|(a, b)| a.max(*b)));
+                    let (ma, mb) = (&self.mask[w * l..(w + 1) * l], &self.mask[mx.with * l..(mx.with + 1) * l]);
+                    mask.extend(ma.iter().zip(mb).map(|(a, b)| a.min(*b)));
+                }
+            }
             if mirrored.get(i).copied().unwrap_or(false) {
                 for row in x[start..].chunks_exact_mut(m) {
                     for (v, c) in row.iter_mut().zip(&self.mirror) {
@@ -495,8 +600,6 @@ impl Windows {
                     }
                 }
             }
-            y.extend_from_slice(&self.y[w * l..(w + 1) * l]);
-            mask.extend_from_slice(&self.mask[w * l..(w + 1) * l]);
         }
         let n_labelled = mask.iter().filter(|&&v| v > 0.0).count();
         Ok(Batch {
@@ -505,6 +608,50 @@ impl Windows {
             mask: Tensor::from_vec(mask, (b, l), device)?,
             n_labelled,
         })
+    }
+
+    /// The normalised features of window `a` mixed with `mix.with` ([`Windows::batch_augmented`])
+    /// into `out` (`l × dim`).
+    fn mix_into(&self, a: usize, mix: Mix, out: &mut [f32]) -> Result<()> {
+        let norm = match &self.norm {
+            Some(norm) if self.can_mix() => norm,
+            _ => return Err(NnError::Data { msg: "these windows cannot be mixed (no whitened features)".into() }),
+        };
+        if !(mix.scale > 0.0 && mix.scale <= 1.0) {
+            return Err(NnError::Data { msg: format!("mixing weight {} outside (0, 1]", mix.scale) });
+        }
+        let (l, ch) = (self.len, norm.channels.len());
+        let w = 2 * ch;
+        let (c, s) = (f64::from(mix.scale), (1.0 - f64::from(mix.scale).powi(2)).max(0.0).sqrt());
+        let (za, zb) =
+            (&self.whitened[a * l * w..(a + 1) * l * w], &self.whitened[mix.with * l * w..(mix.with + 1) * l * w]);
+        let mut z = vec![0.0f64; ch];
+        let mut row = vec![0.0f64; self.dim];
+        for ((ra, rb), o) in za.chunks_exact(w).zip(zb.chunks_exact(w)).zip(out.chunks_exact_mut(self.dim)) {
+            let mut nis = 0.0;
+            for i in 0..ch {
+                z[i] = c * f64::from(ra[i]) + s * f64::from(rb[i]);
+                let u = c * f64::from(ra[ch + i]) + s * f64::from(rb[ch + i]);
+                nis += u * u;
+            }
+            norm.features.from_whitened(&z, nis, &mut row);
+            for (((o, v), mu), sd) in o.iter_mut().zip(&row).zip(&norm.mean).zip(&norm.std) {
+                *o = ((v - mu) / sd) as f32;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `z_i = r_i/√(S_k)_ii` (a non-positive variance counts as 1) and `u = L⁻¹ r_k` of one step
+/// into `row` (`2m` values); `u = z` where `S_k` is not positive definite.
+fn whitened_row(step: &ResidueStep<'_>, row: &mut [f32]) {
+    let m = step.dim();
+    let mut z = vec![0.0; m];
+    Features::Whitened.compute(step.r_k, step.s_k, step.nis, &mut z);
+    let u = step.whitened().unwrap_or_else(|| z.clone());
+    for (o, v) in row.iter_mut().zip(z.iter().chain(&u)) {
+        *o = *v as f32;
     }
 }
 
@@ -622,6 +769,49 @@ mod tests {
                 w.batch_mirrored(&idx, &[], &Device::Cpu).unwrap().x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
             assert_eq!(plain, none);
         }
+    }
+
+    #[test]
+    fn a_mixed_window_is_the_window_of_the_weighted_residues() {
+        let r: Vec<(f64, f64)> = (0..12).map(|k| ((k as f64 * 0.7).sin() * 3.0, (k as f64 * 0.3).cos())).collect();
+        let q: Vec<(f64, f64)> = (0..12).map(|k| ((k as f64 * 0.2).cos(), -(k as f64 * 0.5).sin() * 2.0)).collect();
+        let (a, b) = (series_with_cov(&r, 1.0), series_with_cov(&q, 1.0));
+        let labels = |from: usize| Some((0..12).map(|k| k >= from).collect::<Vec<bool>>());
+        let split = LabelledResidues::new(vec![
+            LabelledSeries::new(a, labels(8)).unwrap(),
+            LabelledSeries::new(b, labels(3)).unwrap(),
+            LabelledSeries::new(series_with_cov(&r, 1.0), None).unwrap(),
+        ])
+        .unwrap();
+        let cfg = WindowConfig { len: 12, stride: 12, features: Features::WhitenedLog };
+        let norm = Normaliser::fit(&split, Features::WhitenedLog).unwrap();
+        let w = Windows::from_split(&split, &norm, &cfg).unwrap();
+        assert!(w.can_mix());
+        let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        // Weight 1 is the window itself.
+        let one = w.batch_augmented(&[0], &[], &[Some(Mix { with: 1, scale: 1.0 })], &Device::Cpu).unwrap();
+        let plain = w.batch(&[0], &Device::Cpu).unwrap();
+        assert!(flat(&one.x).iter().zip(flat(&plain.x)).all(|(u, v)| (u - v).abs() < 1e-5));
+        // Weight c: the features of the series of c·r_a + √(1 − c²)·r_b (same S_k), labels of
+        // either, known where both are.
+        let c = 0.6f64;
+        let s = (1.0 - c * c).sqrt();
+        let mixed_r: Vec<(f64, f64)> = r.iter().zip(&q).map(|(x, y)| (c * x.0 + s * y.0, c * x.1 + s * y.1)).collect();
+        let want = Windows::from_split(&split_of(series_with_cov(&mixed_r, 1.0)), &norm, &cfg).unwrap();
+        let got = w.batch_augmented(&[0], &[], &[Some(Mix { with: 1, scale: c as f32 })], &Device::Cpu).unwrap();
+        let (g, e) = (flat(&got.x), flat(&want.batch(&[0], &Device::Cpu).unwrap().x));
+        assert!(g.iter().zip(&e).all(|(u, v)| (u - v).abs() < 1e-4), "{g:?} vs {e:?}");
+        assert_eq!(flat(&got.y), (0..12).map(|k| if k >= 3 { 1.0 } else { 0.0 }).collect::<Vec<f32>>());
+        assert_eq!(got.n_labelled, 12);
+        // With an unlabelled window the labels are unknown.
+        let half = w.batch_augmented(&[0], &[], &[Some(Mix { with: 2, scale: 0.5 })], &Device::Cpu).unwrap();
+        assert_eq!(half.n_labelled, 0);
+        // Weights outside (0, 1] and raw features are refused.
+        assert!(w.batch_augmented(&[0], &[], &[Some(Mix { with: 1, scale: 0.0 })], &Device::Cpu).is_err());
+        let raw_norm = Normaliser::fit(&split, Features::Raw).unwrap();
+        let raw = Windows::from_split(&split, &raw_norm, &WindowConfig { features: Features::Raw, ..cfg }).unwrap();
+        assert!(!raw.can_mix());
+        assert!(raw.batch_augmented(&[0], &[], &[Some(Mix { with: 1, scale: 0.5 })], &Device::Cpu).is_err());
     }
 
     proptest! {

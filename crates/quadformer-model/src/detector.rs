@@ -121,6 +121,7 @@ impl Default for QuadFormerConfig {
                 patience: 3,
                 labelled_share: Some(0.5),
                 mirror: true,
+                mix: 0.5,
                 ..TrainConfig::default()
             },
             score: ScoreConfig::default(),
