@@ -51,6 +51,15 @@ impl NeuralConfig {
     pub fn check(&self) -> Result<()> {
         self.window.check()?;
         self.train.check()?;
+        if self.train.mix > 0.0 && !self.window.features.is_whitened() {
+            return Err(BaselineError::Config {
+                field: "train.mix",
+                msg: format!(
+                    "mixing windows needs whitened features, not window.features = {:?}",
+                    self.window.features
+                ),
+            });
+        }
         if !(self.pos_weight.is_finite() && self.pos_weight >= 0.0) {
             return Err(BaselineError::Config {
                 field: "pos_weight",
@@ -349,7 +358,7 @@ fn fit_neural<N: PerStepNet>(
     let channels = fit_channels(train_split, valid)?;
     let labelled = labelled_only(train_split)?;
     let norm = Normaliser::fit(&labelled, cfg.window.features)?;
-    let windows = Windows::from_split(&labelled, &norm, &cfg.window)?;
+    let windows = Windows::for_training(&labelled, &norm, &cfg.window)?;
     let pairs = labelled_valid(valid)?;
     let valid_labelled = labelled_only(valid)?;
     let valid_windows =

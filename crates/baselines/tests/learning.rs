@@ -139,4 +139,7 @@ fn sizes_beyond_their_budgets_are_refused_by_name() {
     CnnConfig::default().0.check().unwrap();
     LstmConfig::default().0.check().unwrap();
     SvmConfig::default().check().unwrap();
+    let mut raw = LstmConfig::default().0;
+    raw.window.features = nn_toolkit::Features::Raw;
+    assert!(e(raw.check()).contains("train.mix"));
 }

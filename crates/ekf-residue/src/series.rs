@@ -44,10 +44,11 @@ impl ResidueStep<'_> {
         self.r_k.len()
     }
 
-    /// The residue whitened by its whole covariance, `u = L⁻¹ r_k` with `S_k = L Lᵀ`
-    /// (Cholesky), so that `|u|² = NIS_k`; `None` if `S_k` is not `m × m` positive definite
-    /// (a step of a [`ResidueSeries`] always is).
-    pub fn whitened(&self) -> Option<Vec<f64>> {
+    /// The residue decorrelated by its whole covariance, `u = L⁻¹ r_k` with `S_k = L Lᵀ`
+    /// (Cholesky), so that `|u|² = NIS_k` (the per-channel `r_i/√(S_k)_ii` of the detectors'
+    /// features ignores the correlations); `None` if `S_k` is not `m × m` positive definite (a
+    /// step of a [`ResidueSeries`] always is).
+    pub fn decorrelated(&self) -> Option<Vec<f64>> {
         let m = self.dim();
         if self.s_k.len() != m * m {
             return None;
@@ -384,7 +385,7 @@ mod tests {
     }
 
     #[test]
-    fn whitened_residue_has_the_nis_as_squared_norm() {
+    fn decorrelated_residue_has_the_nis_as_squared_norm() {
         let s = ResidueSeries::from_flat(
             vec![0.0],
             vec!["a".into(), "b".into()],
@@ -393,7 +394,7 @@ mod tests {
         )
         .unwrap();
         let step = s.step(0).unwrap();
-        let u = step.whitened().unwrap();
+        let u = step.decorrelated().unwrap();
         assert!((u.iter().map(|v| v * v).sum::<f64>() - step.nis).abs() < 1e-12);
         // L is lower triangular: the first entry is r₀/√S₀₀.
         assert!((u[0] - 1.5 / 2f64.sqrt()).abs() < 1e-12);

@@ -75,9 +75,10 @@ pub struct TrainConfig {
     #[serde(default)]
     pub mirror: bool,
     /// Probability that a labelled training window is mixed with another labelled window
-    /// ([`Windows::batch_augmented`]) at a weight `c` drawn uniformly from
-    /// [`MIX_MIN_SCALE`]`..1`: attacks of every amplitude from the few labelled flights
-    /// (docs/decisions/047-mixed-windows.md). Default 0 (none).
+    /// ([`Windows::batch_augmented`]; the windows must come from [`Windows::for_training`]
+    /// with whitened features) at a weight `c` drawn uniformly so that both `c` and
+    /// `√(1 − c²)` are at least [`MIX_MIN_WEIGHT`]: attacks of every amplitude from the few
+    /// labelled flights (docs/decisions/047-mixed-windows.md). Default 0 (none).
     #[serde(default)]
     pub mix: f64,
     /// Seed of the shuffling generator. Default 0.
@@ -105,10 +106,11 @@ impl Default for TrainConfig {
     }
 }
 
-/// Smallest weight `c` of a window mixed with another ([`TrainConfig::mix`]): a labelled
-/// attack keeps at least a quarter of its amplitude, so it stays within the amplitudes of the
-/// data (the attack matrix spans 1.5–30 m, docs/decisions/030-attack-model-and-planning.md).
-pub const MIX_MIN_SCALE: f64 = 0.25;
+/// Smallest weight of either window of a mix ([`TrainConfig::mix`]): every labelled attack
+/// keeps at least a quarter of its amplitude (the smallest attack of the matrix, 1.5 m, becomes
+/// 0.375 m, under one GPS σ; docs/decisions/030-attack-model-and-planning.md), so a step
+/// labelled attacked carries an offset.
+pub const MIX_MIN_WEIGHT: f64 = 0.25;
 
 /// Budget of every mini-batch size (training and scoring): a batch is allocated whole.
 pub const MAX_BATCH_SIZE: usize = 65_536;
@@ -246,24 +248,26 @@ fn epoch_windows(windows: &Windows, per_epoch: usize, share: Option<f64>, rng: &
 }
 
 /// Which windows of `chunk` are mixed, and with what ([`TrainConfig::mix`]): each labelled
-/// one (a member of `labelled`) with probability `p`, with another labelled window drawn
-/// uniformly. Draws nothing when `p` is 0, so a run without mixing is unchanged.
+/// one (a member of `labelled`, ascending) with probability `p`, with another labelled window
+/// drawn uniformly, at a weight uniform in `[w₀, √(1 − w₀²)]` (`w₀` = [`MIX_MIN_WEIGHT`]).
+/// Draws nothing when `p` is 0, so a run without mixing is unchanged.
 fn mixes_of(chunk: &[usize], labelled: &[usize], p: f64, rng: &mut StdRng) -> Vec<Option<Mix>> {
     if p <= 0.0 || labelled.len() < 2 {
         return Vec::new();
     }
+    let top = (1.0 - MIX_MIN_WEIGHT * MIX_MIN_WEIGHT).sqrt();
     chunk
         .iter()
         .map(|w| {
-            if labelled.binary_search(w).is_err() || !rng.random_bool(p) {
+            let own = labelled.binary_search(w).ok()?;
+            if !rng.random_bool(p) {
                 return None;
             }
-            let mut with = labelled[rng.random_range(0..labelled.len())];
-            if with == *w {
-                with = labelled[(labelled.binary_search(w).unwrap_or(0) + 1) % labelled.len()];
-            }
-            let scale = rng.random_range(MIX_MIN_SCALE..=1.0) as f32;
-            Some(Mix { with, scale })
+            // Uniform over the other labelled windows.
+            let j = rng.random_range(0..labelled.len() - 1);
+            let with = labelled[j + usize::from(j >= own)];
+            let weight = rng.random_range(MIX_MIN_WEIGHT..=top) as f32;
+            Some(Mix { with, weight })
         })
         .collect()
 }
@@ -341,7 +345,9 @@ fn train_loop<M: TrainableModel + ?Sized, E>(
         if !windows.can_mix() {
             return Err(NnError::Config {
                 field: "train.mix",
-                msg: "mixing windows needs whitened features (window.features)".into(),
+                msg: "mixing windows needs training windows (Windows::for_training) of whitened features \
+                      (window.features)"
+                    .into(),
             }
             .into());
         }
@@ -553,5 +559,33 @@ mod tests {
     fn bad_config_is_named() {
         let e = TrainConfig { batch_size: 0, ..Default::default() }.check().unwrap_err();
         assert!(e.to_string().contains("batch_size"), "{e}");
+    }
+
+    #[test]
+    fn mixes_pair_labelled_windows_with_another_at_bounded_weights_and_draw_nothing_at_zero() {
+        let labelled = [1usize, 4, 5, 9];
+        let chunk = [0usize, 1, 4, 5, 7, 9, 1, 4];
+        let mut rng = StdRng::seed_from_u64(3);
+        let before = StdRng::seed_from_u64(3).random::<u64>();
+        assert!(mixes_of(&chunk, &labelled, 0.0, &mut rng).is_empty());
+        assert_eq!(rng.random::<u64>(), before, "no draw without mixing");
+        let top = (1.0 - MIX_MIN_WEIGHT * MIX_MIN_WEIGHT).sqrt() as f32;
+        let mut partners = std::collections::BTreeSet::new();
+        for seed in 0..200 {
+            let mixes = mixes_of(&chunk, &labelled, 1.0, &mut StdRng::seed_from_u64(seed));
+            for (w, mix) in chunk.iter().zip(&mixes) {
+                match mix {
+                    None => assert!(!labelled.contains(w), "labelled window {w} not mixed at p = 1"),
+                    Some(mx) => {
+                        assert!(labelled.contains(w) && labelled.contains(&mx.with) && mx.with != *w);
+                        assert!((MIX_MIN_WEIGHT as f32..=top).contains(&mx.weight), "{}", mx.weight);
+                        partners.insert((*w, mx.with));
+                    }
+                }
+            }
+        }
+        // Every other labelled window is drawn as a partner.
+        assert_eq!(partners.len(), labelled.len() * (labelled.len() - 1));
+        assert!(TrainConfig { mix: 1.5, ..TrainConfig::default() }.check().is_err());
     }
 }

@@ -230,7 +230,12 @@ impl Normaliser {
             &mut heap
         };
         self.features.compute(step.r_k, step.s_k, step.nis, row);
-        for (((o, v), mu), sd) in out.iter_mut().zip(row.iter()).zip(&self.mean).zip(&self.std) {
+        self.standardise(row, out);
+    }
+
+    /// `(x − μ) / σ` of the features `row` of one step into `out`.
+    fn standardise(&self, row: &[f64], out: &mut [f32]) {
+        for (((o, v), mu), sd) in out.iter_mut().zip(row).zip(&self.mean).zip(&self.std) {
             *o = ((v - mu) / sd) as f32;
         }
     }
@@ -353,8 +358,11 @@ pub struct Windows {
     y: Vec<f32>,
     mask: Vec<f32>,
     /// Per step, the whitened residue `z_i = r_i/√(S_k)_ii` and `u = L⁻¹ r_k` (`|u|² = NIS_k`),
-    /// `2m` values, for a whitened feature map ([`Features::is_whitened`]); empty otherwise.
+    /// `2m` values, for training windows ([`Windows::from_split`]) of a whitened feature map
+    /// ([`Features::is_whitened`]); empty otherwise.
     whitened: Vec<f32>,
+    /// Whether [`Windows::push_series`] keeps `whitened` ([`Windows::for_training`]).
+    mixable: bool,
 }
 
 /// The mixing of one window of a batch with another ([`Windows::batch_augmented`]).
@@ -362,8 +370,8 @@ pub struct Windows {
 pub struct Mix {
     /// The other window.
     pub with: usize,
-    /// Weight `c ∈ (0, 1]` of the window itself; the other gets `√(1 − c²)`.
-    pub scale: f32,
+    /// Weight `c ∈ (0, 1)` of the window itself; the other gets `√(1 − c²)`.
+    pub weight: f32,
 }
 
 /// One mini-batch: inputs `x` (`b × l × m`), labels `y` and mask (`b × l`), all `f32`.
@@ -385,13 +393,26 @@ impl Windows {
         Self { len, dim, ..Self::default() }
     }
 
-    /// All training windows of a split, `cfg.stride` apart within each flight.
+    /// All windows of a split, `cfg.stride` apart within each flight.
     ///
     /// # Errors
     /// [`NnError::Config`] for a bad `cfg`; channel mismatch with `norm`.
     pub fn from_split(data: &LabelledResidues, norm: &Normaliser, cfg: &WindowConfig) -> Result<Self> {
+        Self::split_windows(Self::empty(cfg.len, norm.dim()), data, norm, cfg)
+    }
+
+    /// The training windows of a split: [`Windows::from_split`] with what mixing them needs
+    /// ([`Windows::can_mix`]; per window step the `2m` values of [`Windows::batch_augmented`],
+    /// for a whitened feature map).
+    ///
+    /// # Errors
+    /// As [`Windows::from_split`].
+    pub fn for_training(data: &LabelledResidues, norm: &Normaliser, cfg: &WindowConfig) -> Result<Self> {
+        Self::split_windows(Self { mixable: true, ..Self::empty(cfg.len, norm.dim()) }, data, norm, cfg)
+    }
+
+    fn split_windows(mut out: Self, data: &LabelledResidues, norm: &Normaliser, cfg: &WindowConfig) -> Result<Self> {
         cfg.check()?;
-        let mut out = Self::empty(cfg.len, norm.dim());
         for f in data.flights() {
             out.push_series(f.series(), f.labels(), norm, cfg.stride)?;
         }
@@ -420,9 +441,15 @@ impl Windows {
         {
             return Err(NnError::Data { msg: format!("{} labels for {} steps", l.len(), series.len()) });
         }
-        self.mirror = norm.mirror_centres();
-        if self.norm.as_ref() != Some(norm) {
-            self.norm = Some(norm.clone());
+        match &self.norm {
+            Some(own) if own != norm => {
+                return Err(NnError::Data { msg: "windows of one set need one normaliser".into() });
+            }
+            Some(_) => {}
+            None => {
+                self.mirror = norm.mirror_centres();
+                self.norm = Some(norm.clone());
+            }
         }
         let (l, m) = (self.len, self.dim);
         let sw = SeriesWindows::new(series.len(), l, stride);
@@ -451,7 +478,7 @@ impl Windows {
             self.y.extend_from_slice(&ys[s0..s0 + l]);
             self.mask.extend_from_slice(&ms[s0..s0 + l]);
         }
-        if norm.features.is_whitened() {
+        if self.mixable && norm.features.is_whitened() {
             let w = 2 * series.dim();
             let mut zu = vec![0.0f32; n_pad * w];
             for (k, row) in zu.chunks_exact_mut(w).enumerate() {
@@ -466,8 +493,8 @@ impl Windows {
         Ok(sw)
     }
 
-    /// Whether windows can be mixed ([`Windows::batch_augmented`]): made with a whitened
-    /// feature map, and every window with its whitened residues.
+    /// Whether windows can be mixed ([`Windows::batch_augmented`]): training windows
+    /// ([`Windows::for_training`]) of a whitened feature map.
     pub fn can_mix(&self) -> bool {
         let m2 = self.norm.as_ref().map_or(0, |n| 2 * n.channels.len());
         m2 > 0 && self.whitened.len() == self.len() * self.len * m2
@@ -550,12 +577,13 @@ impl Windows {
     /// plus a response linear in the offset, and clean innovations of equal covariance keep
     /// their covariance under these weights; so the mix is a flight whose attacks are those
     /// of `a` scaled by `c` and those of `b` by `√(1 − c²)`. A step is attacked if it is in
-    /// either and its label is known if it is known in both. It exists to give the few
-    /// labelled flights attacks of every amplitude (docs/decisions/047-mixed-windows.md).
+    /// either and its label is known if it is known in both (0 where unknown). It exists to
+    /// give the few labelled flights attacks of every amplitude
+    /// (docs/decisions/047-mixed-windows.md).
     ///
     /// # Errors
     /// As [`Windows::batch`]; [`NnError::Data`] for a mix of windows that cannot be mixed
-    /// ([`Windows::can_mix`]) or a weight outside `(0, 1]`.
+    /// ([`Windows::can_mix`]) or a weight outside `(0, 1)`.
     pub fn batch_augmented(
         &self,
         idx: &[usize],
@@ -586,9 +614,12 @@ impl Windows {
                     x.resize(start + l * m, 0.0);
                     self.mix_into(w, mx, &mut x[start..])?;
                     let (ya, yb) = (&self.y[w * l..(w + 1) * l], &self.y[mx.with * l..(mx.with + 1) * l]);
-                    y.extend(ya.iter().zip(yb).map(|(a, b)| a.max(*b)));
                     let (ma, mb) = (&self.mask[w * l..(w + 1) * l], &self.mask[mx.with * l..(mx.with + 1) * l]);
-                    mask.extend(ma.iter().zip(mb).map(|(a, b)| a.min(*b)));
+                    for (((ya, yb), ma), mb) in ya.iter().zip(yb).zip(ma).zip(mb) {
+                        let known = ma.min(*mb);
+                        y.push(ya.max(*yb) * known);
+                        mask.push(known);
+                    }
                 }
             }
             if mirrored.get(i).copied().unwrap_or(false) {
@@ -617,12 +648,12 @@ impl Windows {
             Some(norm) if self.can_mix() => norm,
             _ => return Err(NnError::Data { msg: "these windows cannot be mixed (no whitened features)".into() }),
         };
-        if !(mix.scale > 0.0 && mix.scale <= 1.0) {
-            return Err(NnError::Data { msg: format!("mixing weight {} outside (0, 1]", mix.scale) });
+        if !(mix.weight > 0.0 && mix.weight < 1.0) {
+            return Err(NnError::Data { msg: format!("mixing weight {} outside (0, 1)", mix.weight) });
         }
         let (l, ch) = (self.len, norm.channels.len());
         let w = 2 * ch;
-        let (c, s) = (f64::from(mix.scale), (1.0 - f64::from(mix.scale).powi(2)).max(0.0).sqrt());
+        let (c, s) = (f64::from(mix.weight), (1.0 - f64::from(mix.weight).powi(2)).sqrt());
         let (za, zb) =
             (&self.whitened[a * l * w..(a + 1) * l * w], &self.whitened[mix.with * l * w..(mix.with + 1) * l * w]);
         let mut z = vec![0.0f64; ch];
@@ -635,21 +666,20 @@ impl Windows {
                 nis += u * u;
             }
             norm.features.from_whitened(&z, nis, &mut row);
-            for (((o, v), mu), sd) in o.iter_mut().zip(&row).zip(&norm.mean).zip(&norm.std) {
-                *o = ((v - mu) / sd) as f32;
-            }
+            norm.standardise(&row, o);
         }
         Ok(())
     }
 }
 
-/// `z_i = r_i/√(S_k)_ii` (a non-positive variance counts as 1) and `u = L⁻¹ r_k` of one step
-/// into `row` (`2m` values); `u = z` where `S_k` is not positive definite.
+/// `z_i = r_i/√(S_k)_ii` (a non-positive variance counts as 1) and `u = L⁻¹ r_k`
+/// ([`ResidueStep::decorrelated`]) of one step into `row` (`2m` values); `u = z` where `S_k`
+/// is not positive definite.
 fn whitened_row(step: &ResidueStep<'_>, row: &mut [f32]) {
     let m = step.dim();
     let mut z = vec![0.0; m];
     Features::Whitened.compute(step.r_k, step.s_k, step.nis, &mut z);
-    let u = step.whitened().unwrap_or_else(|| z.clone());
+    let u = step.decorrelated().unwrap_or_else(|| z.clone());
     for (o, v) in row.iter_mut().zip(z.iter().chain(&u)) {
         *o = *v as f32;
     }
@@ -785,33 +815,52 @@ mod tests {
         .unwrap();
         let cfg = WindowConfig { len: 12, stride: 12, features: Features::WhitenedLog };
         let norm = Normaliser::fit(&split, Features::WhitenedLog).unwrap();
-        let w = Windows::from_split(&split, &norm, &cfg).unwrap();
+        let w = Windows::for_training(&split, &norm, &cfg).unwrap();
         assert!(w.can_mix());
         let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        // Weight 1 is the window itself.
-        let one = w.batch_augmented(&[0], &[], &[Some(Mix { with: 1, scale: 1.0 })], &Device::Cpu).unwrap();
+        // A weight near 1 is the window itself, with the other's attacks labelled.
+        let one = w.batch_augmented(&[0], &[], &[Some(Mix { with: 1, weight: 0.999_999 })], &Device::Cpu).unwrap();
         let plain = w.batch(&[0], &Device::Cpu).unwrap();
-        assert!(flat(&one.x).iter().zip(flat(&plain.x)).all(|(u, v)| (u - v).abs() < 1e-5));
+        assert!(flat(&one.x).iter().zip(flat(&plain.x)).all(|(u, v)| (u - v).abs() < 1e-2));
         // Weight c: the features of the series of c·r_a + √(1 − c²)·r_b (same S_k), labels of
         // either, known where both are.
         let c = 0.6f64;
         let s = (1.0 - c * c).sqrt();
         let mixed_r: Vec<(f64, f64)> = r.iter().zip(&q).map(|(x, y)| (c * x.0 + s * y.0, c * x.1 + s * y.1)).collect();
         let want = Windows::from_split(&split_of(series_with_cov(&mixed_r, 1.0)), &norm, &cfg).unwrap();
-        let got = w.batch_augmented(&[0], &[], &[Some(Mix { with: 1, scale: c as f32 })], &Device::Cpu).unwrap();
+        let got = w.batch_augmented(&[0], &[], &[Some(Mix { with: 1, weight: c as f32 })], &Device::Cpu).unwrap();
         let (g, e) = (flat(&got.x), flat(&want.batch(&[0], &Device::Cpu).unwrap().x));
         assert!(g.iter().zip(&e).all(|(u, v)| (u - v).abs() < 1e-4), "{g:?} vs {e:?}");
         assert_eq!(flat(&got.y), (0..12).map(|k| if k >= 3 { 1.0 } else { 0.0 }).collect::<Vec<f32>>());
         assert_eq!(got.n_labelled, 12);
         // With an unlabelled window the labels are unknown.
-        let half = w.batch_augmented(&[0], &[], &[Some(Mix { with: 2, scale: 0.5 })], &Device::Cpu).unwrap();
+        let half = w.batch_augmented(&[0], &[], &[Some(Mix { with: 2, weight: 0.5 })], &Device::Cpu).unwrap();
         assert_eq!(half.n_labelled, 0);
-        // Weights outside (0, 1] and raw features are refused.
-        assert!(w.batch_augmented(&[0], &[], &[Some(Mix { with: 1, scale: 0.0 })], &Device::Cpu).is_err());
+        assert!(flat(&half.y).iter().all(|&v| v == 0.0), "labels are 0 where unknown");
+        // Weights outside (0, 1), raw features and windows not made for training are refused.
+        for weight in [0.0, 1.0, f32::NAN] {
+            assert!(w.batch_augmented(&[0], &[], &[Some(Mix { with: 1, weight })], &Device::Cpu).is_err());
+        }
+        let scoring = Windows::from_split(&split, &norm, &cfg).unwrap();
+        assert!(!scoring.can_mix());
         let raw_norm = Normaliser::fit(&split, Features::Raw).unwrap();
-        let raw = Windows::from_split(&split, &raw_norm, &WindowConfig { features: Features::Raw, ..cfg }).unwrap();
+        let raw = Windows::for_training(&split, &raw_norm, &WindowConfig { features: Features::Raw, ..cfg }).unwrap();
         assert!(!raw.can_mix());
-        assert!(raw.batch_augmented(&[0], &[], &[Some(Mix { with: 1, scale: 0.5 })], &Device::Cpu).is_err());
+        assert!(raw.batch_augmented(&[0], &[], &[Some(Mix { with: 1, weight: 0.5 })], &Device::Cpu).is_err());
+        // A short flight's front padding repeats its first step in the mixed features too, with
+        // the labels unknown there.
+        let short = |r: &[(f64, f64)]| {
+            LabelledSeries::new(series_with_cov(&r[..7], 1.0), labels(8).map(|l| l[..7].to_vec())).unwrap()
+        };
+        let short_split = LabelledResidues::new(vec![short(&r), short(&q)]).unwrap();
+        let sw = Windows::for_training(&short_split, &norm, &cfg).unwrap();
+        let mixed = sw.batch_augmented(&[0], &[], &[Some(Mix { with: 1, weight: 0.6 })], &Device::Cpu).unwrap();
+        let x = flat(&mixed.x);
+        let dim = norm.dim();
+        for k in 0..5 {
+            assert_eq!(x[k * dim..(k + 1) * dim], x[5 * dim..6 * dim], "padding row {k}");
+        }
+        assert_eq!(flat(&mixed.mask), (0..12).map(|k| if k >= 5 { 1.0 } else { 0.0 }).collect::<Vec<f32>>());
     }
 
     proptest! {

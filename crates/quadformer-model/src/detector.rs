@@ -108,8 +108,9 @@ impl Default for QuadFormerConfig {
     /// The configuration chosen on validation (docs/decisions/004-training-budget.md and
     /// 044-whitened-inputs.md): windows of 100 whitened steps every 20 steps, every window in
     /// every epoch with half of each epoch's windows drawn from labelled flights, each window
-    /// mirrored with probability ½, up to 12 epochs at a learning rate that falls by 0.85 per
-    /// epoch, stopped after 3 epochs without a better validation F1.
+    /// mirrored with probability ½ and each labelled one mixed with another with probability ½
+    /// (docs/decisions/047-mixed-windows.md), up to 12 epochs at a learning rate that falls by
+    /// 0.85 per epoch, stopped after 3 epochs without a better validation F1.
     fn default() -> Self {
         Self {
             window: WindowConfig { stride: 20, ..WindowConfig::default() },
@@ -150,6 +151,15 @@ impl QuadFormerConfig {
         self.window.check()?;
         self.net.check()?;
         self.train.check()?;
+        if self.train.mix > 0.0 && !self.window.features.is_whitened() {
+            return Err(ModelError::Config {
+                field: "train.mix",
+                msg: format!(
+                    "mixing windows needs whitened features, not window.features = {:?}",
+                    self.window.features
+                ),
+            });
+        }
         // The largest activation of a batch: attention maps (heads × len²) or hidden states
         // (len × width) of every window of the batch.
         let len = self.window.len as u64;
@@ -402,7 +412,7 @@ impl QuadFormerConfig {
             });
         }
         let norm = Normaliser::fit(train_split, self.window.features)?;
-        let windows = Windows::from_split(train_split, &norm, &self.window)?;
+        let windows = Windows::for_training(train_split, &norm, &self.window)?;
         let mut net = QuadFormerNet::new_on(&self.net, self.window.len, norm.dim(), self.train.seed, device)?;
         let report = {
             let trainer = MinMaxTrainer { net: &net, loss: self.loss };

@@ -380,4 +380,10 @@ fn configurations_beyond_the_weight_and_activation_budgets_are_refused() {
     let e = wide.check().unwrap_err().to_string();
     assert!(e.contains("`train.batch_size`") && e.contains("more than the budget of 268435456"), "{e}");
     QuadFormerConfig::default().check().unwrap();
+    // Mixed windows need whitened features.
+    let mut raw = QuadFormerConfig::default();
+    raw.window.features = nn_toolkit::Features::Raw;
+    assert!(matches!(raw.check(), Err(ModelError::Config { field: "train.mix", .. })));
+    raw.train.mix = 0.0;
+    raw.check().unwrap();
 }
