@@ -109,7 +109,7 @@ impl Default for QuadFormerConfig {
     /// 044-whitened-inputs.md): windows of 100 whitened steps every 20 steps, every window in
     /// every epoch with half of each epoch's windows drawn from labelled flights, each window
     /// mirrored with probability ½ and each labelled one mixed with another with probability ½
-    /// (docs/decisions/047-mixed-windows.md), up to 12 epochs at a learning rate that falls by
+    /// (docs/decisions/047-mixed-windows.md), up to 20 epochs at a learning rate that falls by
     /// 0.85 per epoch, stopped after 3 epochs without a better validation F1.
     fn default() -> Self {
         Self {
@@ -117,7 +117,7 @@ impl Default for QuadFormerConfig {
             net: NetConfig::default(),
             loss: LossConfig::default(),
             train: TrainConfig {
-                epochs: 12,
+                epochs: 20,
                 lr_decay: 0.85,
                 patience: 3,
                 labelled_share: Some(0.5),
