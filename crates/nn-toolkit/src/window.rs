@@ -358,7 +358,7 @@ pub struct Windows {
     y: Vec<f32>,
     mask: Vec<f32>,
     /// Per step, the whitened residue `z_i = r_i/√(S_k)_ii` and `u = L⁻¹ r_k` (`|u|² = NIS_k`),
-    /// `2m` values, for training windows ([`Windows::from_split`]) of a whitened feature map
+    /// `2m` values, for training windows ([`Windows::for_training`]) of a whitened feature map
     /// ([`Features::is_whitened`]); empty otherwise.
     whitened: Vec<f32>,
     /// Whether [`Windows::push_series`] keeps `whitened` ([`Windows::for_training`]).
