@@ -29,7 +29,9 @@
 
 use candle_core::{D, DType, Device, Module, Tensor};
 use candle_nn::{Conv1d, Conv1dConfig, Linear, VarBuilder, VarMap};
-use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
+use ekf_residue::{
+    DetectError, Detector, Fit, LabelledResidues, LabelledSeries, OnlineDetector, ResidueSeries, WindowedOnline,
+};
 use nn_toolkit::loss::masked_bce_with_logits;
 use nn_toolkit::saved::sha256_hex;
 use nn_toolkit::{Batch, Normaliser, TrainConfig, TrainableModel, WindowConfig, Windows, init_vars_seeded, train};
@@ -131,6 +133,11 @@ pub struct NeuralConfig {
     /// `loss.pos_weight`. Default 1.
     #[serde(default = "one")]
     pub pos_weight: f64,
+    /// Choose, with the threshold, a centred moving mean of the offline scores over none, a
+    /// quarter, half or one window on either side, as QUADFormer does
+    /// ([`detection_metrics::smoothing`], docs/decisions/048-score-smoothing.md). Default `true`.
+    #[serde(default = "yes")]
+    pub smoothing: bool,
     /// Seed of the initial weights. Default 0.
     pub seed: u64,
 }
@@ -162,6 +169,7 @@ impl Default for CnnConfig {
             hidden: 32,
             kernel: 5,
             pos_weight: 1.0,
+            smoothing: true,
             seed: 0,
         })
     }
@@ -171,6 +179,10 @@ impl Default for LstmConfig {
     fn default() -> Self {
         Self(NeuralConfig { hidden: 64, ..CnnConfig::default().0 })
     }
+}
+
+fn yes() -> bool {
+    true
 }
 
 fn one() -> f64 {
@@ -249,6 +261,8 @@ pub struct NeuralDetector<N> {
     _varmap: VarMap,
     window: WindowConfig,
     score_stride: usize,
+    /// Half-width of the centred moving mean of the offline scores, chosen on validation.
+    smooth: usize,
     threshold: f64,
     /// Threshold of the streaming scores, chosen on validation.
     stream_threshold: f64,
@@ -391,13 +405,16 @@ fn fit_neural<N: PerStepNet>(
         _varmap: varmap,
         window: cfg.window,
         score_stride: cfg.score_stride,
+        smooth: 0,
         threshold: 0.0,
         stream_threshold: 0.0,
         report,
     };
     let scores = pairs.iter().map(|(s, _)| det.score_inner(s)).collect::<Result<Vec<_>>>()?;
-    det.threshold =
-        detection_metrics::best_f1_threshold(scores.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)))?.0;
+    let half_widths = if cfg.smoothing { detection_metrics::smoothing::half_widths(cfg.window.len) } else { vec![0] };
+    let flights: Vec<(&[f64], &[bool])> = scores.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)).collect();
+    let chosen = detection_metrics::best_f1_smoothing(&flights, &half_widths)?;
+    (det.smooth, det.threshold) = (chosen.half_width, chosen.threshold);
     let streamed = pairs.iter().map(|(s, _)| det.score_streaming_inner(s)).collect::<Result<Vec<_>>>()?;
     det.stream_threshold =
         detection_metrics::best_f1_threshold(streamed.iter().zip(&pairs).map(|(sc, (_, l))| (sc.as_slice(), *l)))?.0;
@@ -435,7 +452,8 @@ impl<N: PerStepNet> Detector for NeuralDetector<N> {
 
     fn score(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
         ekf_residue::check_channels(&self.channels, series)?;
-        self.score_inner(series).map_err(into_detect_error)
+        let stitched = self.score_inner(series).map_err(into_detect_error)?;
+        Ok(detection_metrics::centred_mean(&stitched, self.smooth))
     }
 
     fn threshold(&self) -> f64 {
@@ -451,10 +469,47 @@ impl<N: PerStepNet> Detector for NeuralDetector<N> {
         self.score_streaming_inner(series).map_err(into_detect_error)
     }
 
-    /// Streaming re-scores the last `l` steps as one window (the batch score averages the
-    /// windows covering a step, so the two agree only approximately).
+    /// Streaming re-scores the last `l` steps as one window and reports its last step's
+    /// stitched logit, never smoothed (the batch score averages the windows covering a step,
+    /// and may smooth them over later steps, so the two agree only approximately).
+    fn online(&self) -> Box<dyn OnlineDetector + '_> {
+        Box::new(WindowedOnline::new(Stitched(self), self.window.len))
+    }
+
     fn online_window(&self) -> usize {
         self.window.len
+    }
+}
+
+/// A fitted network's stitched logits without the offline smoothing: what its streaming
+/// detector re-scores on each window.
+struct Stitched<'a, N>(&'a NeuralDetector<N>);
+
+impl<N: PerStepNet> Detector for Stitched<'_, N> {
+    fn name(&self) -> &str {
+        self.0.name
+    }
+
+    fn channels(&self) -> &[String] {
+        &self.0.channels
+    }
+
+    fn score(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
+        ekf_residue::check_channels(&self.0.channels, series)?;
+        self.0.score_inner(series).map_err(into_detect_error)
+    }
+
+    /// Not read by [`WindowedOnline`], which alarms at the streaming threshold.
+    fn threshold(&self) -> f64 {
+        self.0.threshold
+    }
+
+    fn streaming_threshold(&self) -> f64 {
+        self.0.stream_threshold
+    }
+
+    fn online_window(&self) -> usize {
+        self.0.window.len
     }
 }
 
@@ -481,6 +536,10 @@ pub struct NeuralManifest {
     pub channels: Vec<String>,
     /// Per-channel normaliser fitted on the labelled training flights.
     pub normaliser: Normaliser,
+    /// Half-width of the centred moving mean of the batch scores, chosen on validation (0 in
+    /// manifests written before smoothing: none).
+    #[serde(default)]
+    pub smooth: usize,
     /// Alarm threshold of the batch scores, chosen on validation.
     pub threshold: f64,
     /// Alarm threshold of the streaming scores, chosen on validation.
@@ -523,6 +582,7 @@ impl<N: PerStepNet> NeuralDetector<N> {
             config: self.config.clone(),
             channels: self.channels.clone(),
             normaliser: self.norm.clone(),
+            smooth: self.smooth,
             threshold: self.threshold,
             stream_threshold: self.stream_threshold,
             report: self.report.clone(),
@@ -598,6 +658,7 @@ fn decode_neural<N: PerStepNet>(
         norm: m.normaliser,
         net,
         _varmap: varmap,
+        smooth: m.smooth,
         threshold: m.threshold,
         stream_threshold: m.stream_threshold,
         report: m.report,

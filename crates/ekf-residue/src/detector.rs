@@ -183,24 +183,64 @@ impl OnlineDetector for Confirmed<'_> {
     }
 }
 
+/// A borrowed detector is a detector: [`WindowedOnline`] holds either a reference or a view
+/// that owns nothing (such as a detector's scores before a post-processing step).
+impl<T: Detector + ?Sized> Detector for &T {
+    fn name(&self) -> &str {
+        (**self).name()
+    }
+
+    fn channels(&self) -> &[String] {
+        (**self).channels()
+    }
+
+    fn score(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
+        (**self).score(series)
+    }
+
+    fn threshold(&self) -> f64 {
+        (**self).threshold()
+    }
+
+    fn streaming_threshold(&self) -> f64 {
+        (**self).streaming_threshold()
+    }
+
+    fn score_streaming(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
+        (**self).score_streaming(series)
+    }
+
+    fn online(&self) -> Box<dyn OnlineDetector + '_> {
+        (**self).online()
+    }
+
+    fn online_at(&self, threshold: f64) -> Box<dyn OnlineDetector + '_> {
+        (**self).online_at(threshold)
+    }
+
+    fn online_window(&self) -> usize {
+        (**self).online_window()
+    }
+}
+
 /// Streaming adapter that re-scores a sliding window of recent steps with a batch
-/// [`Detector`] and reports the newest step.
-pub struct WindowedOnline<'a, D: Detector + ?Sized> {
-    detector: &'a D,
+/// [`Detector`] (usually a reference to one) and reports the newest step.
+pub struct WindowedOnline<D: Detector> {
+    detector: D,
     window: usize,
     t: std::collections::VecDeque<f64>,
     r: std::collections::VecDeque<Vec<f64>>,
     s: std::collections::VecDeque<Vec<f64>>,
 }
 
-impl<'a, D: Detector + ?Sized> WindowedOnline<'a, D> {
+impl<D: Detector> WindowedOnline<D> {
     /// Wraps `detector`, keeping at most `window` (at least 1) past steps.
-    pub fn new(detector: &'a D, window: usize) -> Self {
+    pub fn new(detector: D, window: usize) -> Self {
         Self { detector, window: window.max(1), t: Default::default(), r: Default::default(), s: Default::default() }
     }
 }
 
-impl<D: Detector + ?Sized> OnlineDetector for WindowedOnline<'_, D> {
+impl<D: Detector> OnlineDetector for WindowedOnline<D> {
     fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
         if self.t.len() == self.window {
             self.t.pop_front();

@@ -15,7 +15,7 @@
 //! validation F1 is used unless one is forced. Early stopping uses the same validation F1.
 
 use candle_core::{D, Device, Tensor};
-use detection_metrics::best_f1_threshold;
+use detection_metrics::{best_f1_smoothing, best_f1_threshold, centred_mean, smoothing};
 use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, OnlineDetector, ResidueSeries, check_channels};
 use serde::{Deserialize, Serialize};
 
@@ -74,6 +74,12 @@ pub struct ScoreConfig {
     pub epoch_stride: usize,
     /// Use this mode instead of choosing on validation F1. Default `None`.
     pub mode: Option<ScoreMode>,
+    /// Choose, with each mode's threshold, a centred moving mean of its offline scores over
+    /// none, a quarter, half or one window on either side
+    /// ([`detection_metrics::smoothing`]); `false` keeps the stitched scores. Default `true`
+    /// (docs/decisions/048-score-smoothing.md). The streaming score is never smoothed.
+    #[serde(default = "default_smoothing")]
+    pub smoothing: bool,
     /// Windows per inference batch. Default 64 (memory bound, not a model choice).
     pub batch_size: usize,
 }
@@ -82,9 +88,20 @@ fn default_epoch_stride() -> usize {
     50
 }
 
+fn default_smoothing() -> bool {
+    true
+}
+
 impl Default for ScoreConfig {
     fn default() -> Self {
-        Self { temperature: 50.0, stride: 25, epoch_stride: default_epoch_stride(), mode: None, batch_size: 64 }
+        Self {
+            temperature: 50.0,
+            stride: 25,
+            epoch_stride: default_epoch_stride(),
+            mode: None,
+            smoothing: true,
+            batch_size: 64,
+        }
     }
 }
 
@@ -219,7 +236,11 @@ pub use nn_toolkit::train::MAX_ACTIVATIONS;
 pub struct ModeResult {
     /// The mode.
     pub mode: ScoreMode,
-    /// Best-F1 threshold on the validation split.
+    /// Half-width, in steps, of the centred moving mean applied to the mode's offline scores
+    /// ([`detection_metrics::centred_mean`]), chosen with the threshold; 0 = none.
+    #[serde(default)]
+    pub smooth: usize,
+    /// Best-F1 threshold on the (smoothed) scores of the validation split.
     pub threshold: f64,
     /// Per-step F1 at that threshold on the validation split.
     pub valid_f1: f64,
@@ -320,13 +341,14 @@ fn calibrate(
     }
     all_at.sort_by(f64::total_cmp);
     let crit_scale = all_at.get(all_at.len() / 2).copied().unwrap_or(1.0).max(f64::MIN_POSITIVE);
+    let half_widths = if score.smoothing { smoothing::half_widths(net.window_len()) } else { vec![0] };
     let mut results = Vec::with_capacity(ScoreMode::ALL.len());
     for mode in ScoreMode::ALL {
         let per_flight: Vec<Vec<f64>> = scored.iter().map(|(s, _)| s.mode(mode, crit_scale)).collect();
-        let (threshold, valid_f1) =
-            best_f1_threshold(per_flight.iter().zip(&scored).map(|(s, (_, l))| (s.as_slice(), *l)))
-                .map_err(ekf_residue::DetectError::from)?;
-        results.push(ModeResult { mode, threshold, valid_f1 });
+        let flights: Vec<(&[f64], &[bool])> =
+            per_flight.iter().zip(&scored).map(|(s, (_, l))| (s.as_slice(), *l)).collect();
+        let best = best_f1_smoothing(&flights, &half_widths).map_err(ekf_residue::DetectError::from)?;
+        results.push(ModeResult { mode, smooth: best.half_width, threshold: best.threshold, valid_f1: best.f1 });
     }
     Ok(Calibration { crit_scale, results })
 }
@@ -416,7 +438,9 @@ impl QuadFormerConfig {
         let mut net = QuadFormerNet::new_on(&self.net, self.window.len, norm.dim(), self.train.seed, device)?;
         let report = {
             let trainer = MinMaxTrainer { net: &net, loss: self.loss };
-            let epoch_score = ScoreConfig { stride: self.score.epoch_stride, ..self.score.clone() };
+            // Early stopping selects the network, which the streaming detector shares, on its
+            // own scores: unsmoothed (smoothing is chosen once, on the final network).
+            let epoch_score = ScoreConfig { stride: self.score.epoch_stride, smoothing: false, ..self.score.clone() };
             let mut valid_metric = |t: &MinMaxTrainer<'_>| -> Result<f64> {
                 let cal = calibrate(t.net, &norm, &epoch_score, valid)?;
                 Ok(-chosen(&cal.results, self.score.mode)?.valid_f1)
@@ -493,7 +517,7 @@ impl QuadFormerDetector {
     /// As [`QuadFormerDetector::raw_scores`].
     pub fn scores_by_mode(&self, series: &ResidueSeries) -> Result<Vec<(ModeResult, Vec<f64>)>> {
         let raw = self.raw_scores(series)?;
-        Ok(self.mode_results.iter().map(|r| (*r, raw.mode(r.mode, self.crit_scale))).collect())
+        Ok(self.mode_results.iter().map(|r| (*r, centred_mean(&raw.mode(r.mode, self.crit_scale), r.smooth))).collect())
     }
 
     /// Whether streaming decisions run in the streaming engine ([`StreamingNet`]); otherwise
@@ -520,7 +544,7 @@ impl Detector for QuadFormerDetector {
 
     fn score(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
         check_channels(&self.norm.channels, series)?;
-        Ok(self.raw_scores(series)?.mode(self.chosen.mode, self.crit_scale))
+        Ok(centred_mean(&self.raw_scores(series)?.mode(self.chosen.mode, self.crit_scale), self.chosen.smooth))
     }
 
     fn threshold(&self) -> f64 {

@@ -56,6 +56,12 @@ fn fitted() -> &'static QuadFormerDetector {
     })
 }
 
+/// The stitched, unsmoothed scores of the detector's chosen mode: what a streaming window's
+/// last step is compared with.
+fn stitched(det: &QuadFormerDetector, series: &ResidueSeries) -> Vec<f64> {
+    det.raw_scores(series).unwrap().mode(det.chosen.mode, det.crit_scale)
+}
+
 fn f1(det: &QuadFormerDetector, data: &LabelledResidues) -> f64 {
     let mut c = detection_metrics::Confusion::default();
     for (s, l) in data.labelled() {
@@ -87,6 +93,26 @@ fn overfits_a_tiny_labelled_set() {
     let hist = &det.train_report().unwrap().history;
     assert!(hist.last().unwrap().train_loss < hist[0].train_loss);
     assert!(det.chosen().valid_f1 > 0.95, "{:?}", det.chosen());
+}
+
+/// The offline score is the chosen mode's stitched score under the centred moving mean chosen
+/// on validation; with `score.smoothing` off, no mode is smoothed.
+#[test]
+fn offline_scores_are_smoothed_as_chosen_on_validation() {
+    let det = fitted();
+    let widths = detection_metrics::smoothing::half_widths(L);
+    assert!(det.mode_results().iter().all(|r| widths.contains(&r.smooth)), "{:?}", det.mode_results());
+    let s = flight(200, 22, 4.0, false);
+    assert_eq!(det.score(s.series()).unwrap(), centred_mean(&stitched(det, s.series()), det.chosen().smooth));
+    for (r, scores) in det.scores_by_mode(s.series()).unwrap() {
+        let raw = det.raw_scores(s.series()).unwrap().mode(r.mode, det.crit_scale);
+        assert_eq!(scores, centred_mean(&raw, r.smooth), "{:?}", r.mode);
+    }
+    let mut cfg = config();
+    cfg.train.epochs = 1;
+    cfg.score.smoothing = false;
+    let plain = cfg.fit(&split(&[13], 160, true), &split(&[14], 160, true)).unwrap();
+    assert!(plain.mode_results().iter().all(|r| r.smooth == 0), "{:?}", plain.mode_results());
 }
 
 #[test]
@@ -181,7 +207,7 @@ fn corrupt_truncated_and_mismatched_checkpoints_are_clear_errors() {
 fn online_matches_batch_on_one_window_and_checks_input() {
     let det = fitted();
     let f = flight(L, 31, 4.0, false);
-    let batch = det.score(f.series()).unwrap();
+    let batch = stitched(det, f.series());
     let mut online = det.online();
     let mut last = None;
     for step in f.series().steps() {
@@ -209,7 +235,7 @@ fn online_matches_batch_in_every_mode() {
     for r in fitted().mode_results() {
         let mut det = QuadFormerDetector::load(&path).unwrap();
         det.chosen = *r;
-        let batch = det.score(f.series()).unwrap();
+        let batch = stitched(&det, f.series());
         let mut online = det.online();
         let last = f.series().steps().map(|s| online.update(&s).unwrap()).last().unwrap();
         assert!((last.score - batch[L - 1]).abs() < 1e-6, "{:?}: {} vs {}", r.mode, last.score, batch[L - 1]);
@@ -241,7 +267,7 @@ fn without_the_engine_the_online_detector_streams_through_candle() {
             assert_eq!(da.alarm, db.alarm, "{:?}, step {k}", r.mode);
         }
         b.reset();
-        let batch = candle.score(one_window.series()).unwrap();
+        let batch = stitched(&candle, one_window.series());
         let last = one_window.series().steps().map(|s| b.update(&s).unwrap()).last().unwrap();
         assert!((last.score - batch[L - 1]).abs() < 1e-6, "{:?}: {} vs {}", r.mode, last.score, batch[L - 1]);
     }
