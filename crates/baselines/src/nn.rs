@@ -52,16 +52,7 @@ impl NeuralConfig {
     /// [`BaselineError::Config`] naming the field.
     pub fn check(&self) -> Result<()> {
         self.window.check()?;
-        self.train.check()?;
-        if self.train.mix > 0.0 && !self.window.features.is_whitened() {
-            return Err(BaselineError::Config {
-                field: "train.mix",
-                msg: format!(
-                    "mixing windows needs whitened features, not window.features = {:?}",
-                    self.window.features
-                ),
-            });
-        }
+        self.train.check_for(&self.window)?;
         if !(self.pos_weight.is_finite() && self.pos_weight >= 0.0) {
             return Err(BaselineError::Config {
                 field: "pos_weight",

@@ -22,7 +22,7 @@ use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
-use crate::window::{Batch, Mix, Windows};
+use crate::window::{Batch, Mix, WindowConfig, Windows};
 
 /// Budget of the largest activation tensor of a mini-batch, in numbers (1 GiB of `f32`).
 pub const MAX_ACTIVATIONS: u64 = 1 << 28;
@@ -116,6 +116,23 @@ pub const MIX_MIN_WEIGHT: f64 = 0.25;
 pub const MAX_BATCH_SIZE: usize = 65_536;
 
 impl TrainConfig {
+    /// [`TrainConfig::check`], and that mixing (`mix > 0`) has the whitened features it mixes
+    /// (docs/decisions/047-mixed-windows.md): the check a model configuration runs on its
+    /// training loop and windows together.
+    ///
+    /// # Errors
+    /// [`NnError::Config`] naming the field.
+    pub fn check_for(&self, window: &WindowConfig) -> Result<()> {
+        self.check()?;
+        if self.mix > 0.0 && !window.features.is_whitened() {
+            return Err(NnError::Config {
+                field: "train.mix",
+                msg: format!("mixing windows needs whitened features, not window.features = {:?}", window.features),
+            });
+        }
+        Ok(())
+    }
+
     /// Checks that sizes are positive and rates finite and non-negative.
     ///
     /// # Errors

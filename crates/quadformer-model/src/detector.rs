@@ -167,16 +167,7 @@ impl QuadFormerConfig {
     pub fn check(&self) -> Result<()> {
         self.window.check()?;
         self.net.check()?;
-        self.train.check()?;
-        if self.train.mix > 0.0 && !self.window.features.is_whitened() {
-            return Err(ModelError::Config {
-                field: "train.mix",
-                msg: format!(
-                    "mixing windows needs whitened features, not window.features = {:?}",
-                    self.window.features
-                ),
-            });
-        }
+        self.train.check_for(&self.window)?;
         // The largest activation of a batch: attention maps (heads × len²) or hidden states
         // (len × width) of every window of the batch.
         let len = self.window.len as u64;
