@@ -442,9 +442,7 @@ impl<N: PerStepNet> Detector for NeuralDetector<N> {
     }
 
     fn score(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
-        ekf_residue::check_channels(&self.channels, series)?;
-        let stitched = self.score_inner(series).map_err(into_detect_error)?;
-        Ok(detection_metrics::centred_mean(&stitched, self.smooth))
+        Ok(detection_metrics::centred_mean(&Stitched(self).score(series)?, self.smooth))
     }
 
     fn threshold(&self) -> f64 {
