@@ -7,11 +7,11 @@
 //! candle 0.11 on a 2-core CPU).
 //!
 //! A thread other than the main one allocates from a per-thread arena made of 64 MiB heaps,
-//! and glibc unmaps such a heap as soon as the memory at its top is free, whatever the trim
+//! and glibc unmaps such a heap as soon as it is wholly free, whatever the trim
 //! threshold (`heap_trim` in glibc's `malloc/arena.c`); the next tensor then faults fresh
-//! pages in again. A top pad of 64 MiB keeps those heaps mapped: fits on the worker threads
-//! of `reproduce-tables` took a 28th of the page faults and about 6 % less time
-//! (docs/performance.md).
+//! pages in again. A top pad of 64 MiB keeps those heaps mapped: the tables stage of
+//! `reproduce-tables`, whose fits run on worker threads, went from 158 M page faults and
+//! 724 s of system time to 0.75 M and 7 s (docs/decisions/065-training-cost.md).
 
 /// `mallopt` threshold above which glibc serves allocations with `mmap`: 32 MiB.
 pub const MMAP_THRESHOLD_BYTES: i32 = 32 * 1024 * 1024;
