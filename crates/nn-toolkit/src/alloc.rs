@@ -25,7 +25,7 @@ pub const TOP_PAD_BYTES: i32 = 64 * 1024 * 1024;
 ///
 /// Call it once near the start of a program that trains or scores with candle. It is a no-op
 /// (returning `false`) on platforms other than Linux with glibc. It only changes allocator
-/// thresholds, never the results of a computation.
+/// thresholds and padding, never the results of a computation.
 #[allow(unsafe_code)]
 pub fn tune_allocator() -> bool {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
