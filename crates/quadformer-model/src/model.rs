@@ -94,6 +94,14 @@ pub struct NetConfig {
     /// as [`ClassInput::Reconstruction`], the only head of earlier versions.
     #[serde(default)]
     pub class_input: ClassInput,
+    /// Causal attention: every step attends to itself and earlier steps only, and its prior
+    /// is the TPC (or Gaussian) kernel restricted to them and renormalised, so every step's
+    /// outputs are a function of its past, as the newest step's are when streaming. Each
+    /// position of a training window is then a streaming decision. Default `false`, the
+    /// paper's attention over the whole window (docs/decisions/092-causal-loop-quadformer.md);
+    /// a checkpoint without the field reads as `false`.
+    #[serde(default)]
+    pub causal: bool,
 }
 
 impl Default for NetConfig {
@@ -109,6 +117,7 @@ impl Default for NetConfig {
             prior: Prior::Tpc,
             dcm: true,
             class_input: ClassInput::Hidden,
+            causal: false,
         }
     }
 }
@@ -290,6 +299,10 @@ pub struct QuadFormerNet {
     dist_p: Tensor,
     /// `|j − i|²`, `1 × 1 × l × l`, built once (Gaussian prior).
     dist_sq: Tensor,
+    /// For a causal network ([`NetConfig::causal`]): the additive mask of the attention scores
+    /// (0 where `j ≤ i`, [`CAUSAL_MASK_FLOOR`] after) and the multiplicative one of the priors
+    /// (1 where `j ≤ i`, 0 after), `1 × 1 × l × l` each.
+    causal: Option<(Tensor, Tensor)>,
     /// Frozen TPC priors per layer for inference (`None` while training; empty for the
     /// Gaussian prior).
     prior_cache: Option<Vec<Tensor>>,
@@ -326,6 +339,7 @@ impl QuadFormerNet {
         let weights = QuadFormerWeights::new(cfg, len, dim, &vb)?;
         QuadFormerWeights::init_seeded(&varmap, cfg, len, seed, &dev)?;
         let (dist_p, dist_sq) = distance_matrices(len, cfg.p, &dev)?;
+        let causal = if cfg.causal { Some(causal_masks(len, &dev)?) } else { None };
         Ok(Self {
             cfg: cfg.clone(),
             len,
@@ -335,6 +349,7 @@ impl QuadFormerNet {
             pos: positional_encoding(len, cfg.d_model, &dev)?,
             dist_p,
             dist_sq,
+            causal,
             prior_cache: None,
         })
     }
@@ -427,8 +442,17 @@ impl QuadFormerNet {
         let gamma = log_gamma.exp()?.reshape((heads, l, 1))?;
         // eq:TPC: T = Rescale(exp(−γ·|j−i|^p)), exponent clamped (module docs).
         let arg = gamma.broadcast_mul(&self.dist_p)?.neg()?.clamp(PRIOR_EXP_FLOOR, 0.0)?;
-        let k = arg.exp()?;
-        k.broadcast_div(&k.sum_keepdim(D::Minus1)?)?.unsqueeze(0)
+        let k = self.restrict_to_past(&arg.exp()?.unsqueeze(0)?)?;
+        k.broadcast_div(&k.sum_keepdim(D::Minus1)?)
+    }
+
+    /// A prior kernel (`… × l × l`) with the weights of later steps zeroed when the network is
+    /// causal; unchanged otherwise. The diagonal stays, so every row keeps a positive sum.
+    fn restrict_to_past(&self, k: &Tensor) -> candle_core::Result<Tensor> {
+        match &self.causal {
+            Some((_, keep)) => k.broadcast_mul(keep),
+            None => Ok(k.clone()),
+        }
     }
 
     /// Anomaly Transformer's Gaussian prior from the layer input `h` (`(b·l) × d`).
@@ -440,7 +464,7 @@ impl QuadFormerNet {
         let sigma = ((s * 3f64.ln())?.exp()? - 1.0)?.unsqueeze(D::Minus1)?;
         let two_var = (sigma.sqr()? * 2.0)?;
         let arg = self.dist_sq.broadcast_div(&two_var)?.neg()?.clamp(PRIOR_EXP_FLOOR, 0.0)?;
-        let k = arg.exp()?;
+        let k = self.restrict_to_past(&arg.exp()?)?;
         k.broadcast_div(&k.sum_keepdim(D::Minus1)?)
     }
 
@@ -507,7 +531,11 @@ impl QuadFormerNet {
                 (_, _, Some(own)) => own,
                 _ => candle_core::bail!("layer {idx} has no keys"),
             };
-            let scores = (q.matmul(&keys.t()?)? * scale)?;
+            let mut scores = (q.matmul(&keys.t()?)? * scale)?;
+            // The last step's row attends to every step, causal or not.
+            if let (Some((mask, _)), true) = (&self.causal, q_rows == l) {
+                scores = scores.broadcast_add(mask)?;
+            }
             let c = softmax_last_dim(&scores)?;
             let c_out = if q_rows == out_rows { c.clone() } else { c.narrow(2, l - 1, 1)? };
             if keep_attn {
@@ -584,6 +612,20 @@ impl QuadFormerNet {
         let class = masked_bce_with_logits(&out.logits, &batch.y, &batch.mask, batch.n_labelled, cfg.pos_weight)?;
         (recon.affine(2.0, 0.0)? + dis)? + class.affine(cfg.alpha1 + cfg.alpha2, 0.0)?
     }
+}
+
+/// Additive mask of a causal attention's scores after the diagonal: `exp` of it underflows to
+/// 0 in `f32` whatever the scores, and it stays finite, so no `∞ − ∞` reaches a gradient.
+pub const CAUSAL_MASK_FLOOR: f32 = -1e9;
+
+/// The causal masks of [`QuadFormerNet`]: additive on the scores (0 / [`CAUSAL_MASK_FLOOR`])
+/// and multiplicative on the priors (1 / 0), `1 × 1 × l × l` each.
+fn causal_masks(len: usize, dev: &Device) -> candle_core::Result<(Tensor, Tensor)> {
+    let past = |i: usize, j: usize| j <= i;
+    let add: Vec<f32> =
+        (0..len).flat_map(|i| (0..len).map(move |j| if past(i, j) { 0.0 } else { CAUSAL_MASK_FLOOR })).collect();
+    let keep: Vec<f32> = (0..len).flat_map(|i| (0..len).map(move |j| if past(i, j) { 1.0 } else { 0.0 })).collect();
+    Ok((Tensor::from_vec(add, (1, 1, len, len), dev)?, Tensor::from_vec(keep, (1, 1, len, len), dev)?))
 }
 
 /// `|j − i|^p` (`1 × l × l`) and `|j − i|²` (`1 × 1 × l × l`).

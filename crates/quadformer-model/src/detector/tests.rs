@@ -273,6 +273,33 @@ fn without_the_engine_the_online_detector_streams_through_candle() {
     }
 }
 
+/// A causal network (`net.causal`) trains and streams through the candle pass on its window
+/// (the engine does not implement the masks). With no padding at the start, every streaming
+/// score of a one-window flight is the batch score of its step, and the last one is in every
+/// mode.
+#[test]
+fn a_causal_detector_learns_and_streams_through_candle_without_padding() {
+    let mut cfg = config();
+    cfg.net.causal = true;
+    let mut flights = split(&[1, 2], 240, false).flights().to_vec();
+    flights.push(flight(240, 3, 4.0, true));
+    let mut det = cfg.fit(&LabelledResidues::new(flights).unwrap(), &split(&[4], 240, true)).unwrap();
+    assert!(!det.streams_with_engine());
+    let f = f1(&det, &split(&[5, 6], 240, true));
+    assert!(f > 0.8, "test F1 {f}, chosen {:?}", det.chosen());
+    let one_window = flight(L, 35, 4.0, false);
+    for r in det.mode_results().to_vec() {
+        det.chosen = r;
+        let batch = stitched(&det, one_window.series());
+        let mut online = det.online();
+        let streamed: Vec<f64> = one_window.series().steps().map(|s| online.update(&s).unwrap().score).collect();
+        let steps = if r.mode == ScoreMode::Classifier { 0..L } else { L - 1..L };
+        for k in steps {
+            assert!((streamed[k] - batch[k]).abs() < 1e-6, "{:?}, step {k}: {} vs {}", r.mode, streamed[k], batch[k]);
+        }
+    }
+}
+
 #[test]
 fn the_streaming_threshold_is_chosen_on_validation_streaming_scores_and_saved() {
     let det = fitted();

@@ -85,6 +85,58 @@ fn last_step_forward_matches_the_full_forward() {
 }
 
 #[test]
+fn a_causal_network_reads_only_the_past() {
+    let v = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    for (prior, dcm) in [(Prior::Tpc, true), (Prior::Tpc, false), (Prior::Gaussian, true)] {
+        let cfg = NetConfig { causal: true, n_layers: 3, ..tiny(prior, dcm) };
+        let mut net = QuadFormerNet::new(&cfg, 12, 3, 5).unwrap();
+        let x = batch(1, 12, 3, 6).x;
+        // Change the last four steps: the outputs of the first eight must not move.
+        let later = (batch(1, 4, 3, 7).x * 5.0).unwrap();
+        let y = Tensor::cat(&[x.narrow(1, 0, 8).unwrap(), later], 1).unwrap();
+        let (a, b) = (net.forward(&x).unwrap(), net.forward(&y).unwrap());
+        let case = format!("{prior:?} dcm={dcm}");
+        let head = |t: &Tensor| v(&t.narrow(1, 0, 8).unwrap());
+        assert_eq!(head(&a.r_hat), head(&b.r_hat), "{case}");
+        assert_eq!(head(&a.logits), head(&b.logits), "{case}");
+        assert_ne!(v(&a.logits), v(&b.logits), "{case}: the later steps must matter to themselves");
+        // Priors and attention put no weight after the diagonal, and their rows sum to 1.
+        for t in a.prior.iter().chain(&a.attn) {
+            let rows = t.flatten_to(2).unwrap().to_vec2::<f32>().unwrap();
+            for (r, row) in rows.iter().enumerate() {
+                let i = r % 12;
+                assert!(row[i + 1..].iter().all(|w| *w == 0.0), "{case}: row {i} {row:?}");
+                assert!((row.iter().sum::<f32>() - 1.0).abs() < 1e-5, "{case}: row {i}");
+            }
+        }
+        let tcd = QuadFormerNet::tcd(&a, GradFlow::Stop, GradFlow::Stop).unwrap();
+        assert!(v(&tcd).iter().all(|t| t.is_finite() && *t >= 0.0), "{case}");
+        // The last step's outputs, as streaming computes them, are the full pass's.
+        net.freeze().unwrap();
+        let full = net.forward(&x).unwrap();
+        let last = net.forward_steps(&x, Steps::Last { with_tcd: false }).unwrap();
+        let d = (last.logits - full.logits.narrow(1, 11, 1).unwrap()).unwrap().abs().unwrap();
+        assert!(d.max_all().unwrap().to_scalar::<f32>().unwrap() < 1e-5, "{case}");
+        // Every weight still learns, and the gradients are finite.
+        net.thaw();
+        let trainer = MinMaxTrainer { net: &net, loss: LossConfig::default() };
+        let loss = nn_toolkit::train::TrainableModel::loss(&trainer, &batch(3, 12, 3, 2), 0).unwrap();
+        let grads = loss.backward().unwrap();
+        for (name, var) in vars(&net) {
+            if dcm && name.starts_with("layers.2.attn.w_k") {
+                continue;
+            }
+            let g = grad_norm(&grads, &var);
+            assert!(g > 0.0 && g.is_finite(), "{case}: gradient {g} reaches {name}");
+        }
+    }
+    // A configuration written before the field existed reads as the paper's full-window attention.
+    let mut json = serde_json::to_value(tiny(Prior::Tpc, true)).unwrap();
+    json.as_object_mut().unwrap().remove("causal");
+    assert!(!serde_json::from_value::<NetConfig>(json).unwrap().causal);
+}
+
+#[test]
 fn prior_rows_sum_to_one_and_peak_on_diagonal() {
     for prior in [Prior::Tpc, Prior::Gaussian] {
         let net = QuadFormerNet::new(&tiny(prior, true), 30, 2, 0).unwrap();
