@@ -298,6 +298,15 @@ fn a_causal_detector_learns_and_streams_through_candle_without_padding() {
             assert!((streamed[k] - batch[k]).abs() < 1e-6, "{:?}, step {k}: {} vs {}", r.mode, streamed[k], batch[k]);
         }
     }
+    // A checkpoint keeps the causal network: the same scores, batch and streaming.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("causal.json");
+    save(&det, &path);
+    let back = QuadFormerDetector::load(&path).unwrap();
+    assert!(back.config.net.causal && !back.streams_with_engine());
+    let long = flight(3 * L, 36, 4.0, false);
+    assert_eq!(back.score(long.series()).unwrap(), det.score(long.series()).unwrap());
+    assert_eq!(back.score_streaming(long.series()).unwrap(), det.score_streaming(long.series()).unwrap());
 }
 
 #[test]
