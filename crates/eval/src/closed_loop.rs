@@ -50,7 +50,7 @@ use uav_dynamics::sensors::{Flight, GpsSample};
 use crate::cell::{AttackModel, Cell, NoiseModel, UavModel};
 use crate::dataset::{DatasetConfig, PlannedFlight, ResidueProtocol, Split, SplitSteps, load_or_build, plan_split};
 use crate::io::{AttackRecord, FlightDir, TIME_MATCH_TOL_S, write_text_atomic};
-use crate::methods::Method;
+use crate::methods::{Method, MethodConfigs};
 use crate::metrics::{MeanStd, detection_delays, false_alarms, quantile};
 use crate::plot::{ErrorSeries, error_time_plot};
 use crate::reproduce::{Options, ReproduceError, Result};
@@ -306,6 +306,14 @@ fn dataset_err(unit: LoopUnit, family: Family) -> impl Fn(crate::dataset::Datase
     move |source| ReproduceError::Dataset { cell: format!("closed loop {} {}", unit.slug(), family.name()), source }
 }
 
+/// The method configurations of a unit's fits: the matrix's, seeded, with QUADFormer's
+/// attention causal when `MatrixConfig::loop_causal` says so.
+fn loop_method_configs(opts: &Options, seed: u64) -> MethodConfigs {
+    let mut cfgs = opts.config.methods.seeded(seed);
+    cfgs.quadformer.net.causal = opts.config.loop_causal;
+    cfgs
+}
+
 /// Merge the flights of several splits of one channel set.
 fn merge(splits: Vec<LabelledResidues>) -> Result<LabelledResidues> {
     let flights = splits.into_iter().flat_map(|s| s.flights().to_vec()).collect();
@@ -339,7 +347,7 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
         valid.push(data.valid().map_err(dataset_err(unit, f))?);
     }
     let (train, valid) = (merge(train)?, merge(valid)?);
-    let cfgs = opts.config.methods.seeded(unit.seed);
+    let cfgs = loop_method_configs(opts, unit.seed);
     // Every family of a unit shares the cell's simulator and filter.
     let Some((_, first)) = test_cfgs.first() else {
         return Err(ReproduceError::Config("closed loop: no attack family".into()));
@@ -800,7 +808,7 @@ fn unit_key(
         let key = c.get().cache_key().map_err(dataset_err(unit, *f))?;
         h.update(key.as_bytes());
     }
-    let m = serde_json::to_string(&opts.config.methods.seeded(unit.seed))
+    let m = serde_json::to_string(&loop_method_configs(opts, unit.seed))
         .map_err(|e| ReproduceError::Config(format!("closed-loop key: {e}")))?;
     h.update(m.as_bytes());
     Ok(crate::dataset::hex(&h.finalize()))
@@ -1088,6 +1096,26 @@ mod tests {
     }
 
     const UNIT: LoopUnit = LoopUnit { model: UavModel::I, noise: NoiseModel::Exponential, seed: 0 };
+
+    #[test]
+    fn the_loop_quadformer_is_causal_unless_configured_otherwise() {
+        let mut opts = Options {
+            config: crate::reproduce::MatrixConfig::default(),
+            quick: false,
+            seeds: 1,
+            cells: Vec::new(),
+            methods: Vec::new(),
+            out: PathBuf::new(),
+            progress: false,
+            stages: crate::reproduce::Stages::ClosedLoop,
+        };
+        let cfgs = loop_method_configs(&opts, 3);
+        assert!(cfgs.quadformer.net.causal);
+        assert!(!opts.config.methods.quadformer.net.causal, "Tables I and II keep the full window");
+        assert_eq!(cfgs.quadformer.train.seed, opts.config.methods.seeded(3).quadformer.train.seed);
+        opts.config.loop_causal = false;
+        assert!(!loop_method_configs(&opts, 3).quadformer.net.causal);
+    }
 
     #[test]
     fn row_counts_alarms_delays_false_alarm_events_and_errors() {

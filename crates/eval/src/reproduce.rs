@@ -103,6 +103,11 @@ pub struct MatrixConfig {
     /// best ([`crate::closed_loop::loop_setting`]). Default `[1]`, every raw alarm
     /// (docs/decisions/091-closed-loop.md).
     pub loop_confirm: Vec<usize>,
+    /// Whether the closed loop's QUADFormer attends causally (`NetConfig::causal`): every
+    /// position of its training windows is a decision on the past, as every decision in the
+    /// loop is. Tables I and II keep `methods.quadformer` as it is. Default `true`, chosen on
+    /// the loop's validation flights (docs/decisions/092-causal-loop-quadformer.md).
+    pub loop_causal: bool,
 }
 
 impl Default for MatrixConfig {
@@ -115,6 +120,7 @@ impl Default for MatrixConfig {
             sweep_sigma: vec![0.5, 1.0, 2.0, 3.0, 5.0, 10.0],
             ablation_fractions: vec![0.01, 0.1, 1.0],
             loop_confirm: vec![1],
+            loop_causal: true,
         }
     }
 }
