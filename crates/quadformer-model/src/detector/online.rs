@@ -81,47 +81,30 @@ impl CandleWindow {
             self.start = (self.start + 1) % l;
         }
         self.n_seen += 1;
-        let window: Vec<f32> =
+        let n = self.n_seen;
+        // The ring in time order: the `n` steps seen at its end while `n < l`.
+        let mut window: Vec<f32> =
             (0..l).flat_map(|i| self.ring[(self.start + i) % l * m..][..m].iter().copied()).collect();
-        if net.config().causal && self.n_seen < l {
-            return self.push_warm_up(net, window, x, with_tcd);
-        }
-        let out = net.forward_steps(&Tensor::from_vec(window, (1, l, m), net.device())?, Steps::Last { with_tcd })?;
-        let logit = out.logits.flatten_all()?.to_vec1::<f32>()?;
+        // A causal network needs no padding: the steps seen open the window (the rest repeats
+        // the newest, which no earlier position reads), and position `n − 1` is the newest
+        // step, as in the batch score of a flight's first window; its TCD covers those steps.
+        let (steps, row, seen) = if net.config().causal && n < l {
+            window.drain(..(l - n) * m);
+            for _ in n..l {
+                window.extend_from_slice(x);
+            }
+            (Steps::All, n - 1, n)
+        } else {
+            (Steps::Last { with_tcd }, 0, l)
+        };
+        let out = net.forward_steps(&Tensor::from_vec(window, (1, l, m), net.device())?, steps)?;
+        let logit = out.logits.narrow(1, row, 1)?.flatten_all()?.to_vec1::<f32>()?;
         let logit = *logit.first().ok_or_else(|| ModelError::Data { msg: "the network gave no logit".into() })?;
-        let r_hat = out.r_hat.flatten_all()?.to_vec1::<f32>()?;
-        let recon_err = r_hat.iter().zip(x).map(|(r, v)| (r - v) * (r - v)).sum::<f32>() / m as f32;
-        if with_tcd {
-            self.tcd = QuadFormerNet::tcd(&out, GradFlow::Stop, GradFlow::Stop)?.flatten_all()?.to_vec1::<f32>()?;
-        }
-        Ok(StepOutput { recon_err, logit, tcd: with_tcd.then_some(&self.tcd[..]) })
-    }
-
-    /// The newest step's outputs of a causal network before `l` steps have been seen: the
-    /// `n` steps seen open the window (the rest repeats the newest, which no earlier position
-    /// reads), and the outputs are those of position `n − 1`, as in the batch score of a
-    /// flight's first window. The TCD covers the `n` steps seen. `front_padded` is the window
-    /// as the ring holds it: the `n` steps seen at its end.
-    fn push_warm_up(
-        &mut self,
-        net: &QuadFormerNet,
-        front_padded: Vec<f32>,
-        x: &[f32],
-        with_tcd: bool,
-    ) -> Result<StepOutput<'_>> {
-        let (l, m, n) = (self.l, self.m, self.n_seen);
-        let mut window = front_padded[(l - n) * m..].to_vec();
-        for _ in n..l {
-            window.extend_from_slice(x);
-        }
-        let out = net.forward_steps(&Tensor::from_vec(window, (1, l, m), net.device())?, Steps::All)?;
-        let logit = out.logits.narrow(1, n - 1, 1)?.flatten_all()?.to_vec1::<f32>()?;
-        let logit = *logit.first().ok_or_else(|| ModelError::Data { msg: "the network gave no logit".into() })?;
-        let r_hat = out.r_hat.narrow(1, n - 1, 1)?.flatten_all()?.to_vec1::<f32>()?;
+        let r_hat = out.r_hat.narrow(1, row, 1)?.flatten_all()?.to_vec1::<f32>()?;
         let recon_err = r_hat.iter().zip(x).map(|(r, v)| (r - v) * (r - v)).sum::<f32>() / m as f32;
         if with_tcd {
             let tcd = QuadFormerNet::tcd(&out, GradFlow::Stop, GradFlow::Stop)?;
-            self.tcd = tcd.narrow(1, 0, n)?.flatten_all()?.to_vec1::<f32>()?;
+            self.tcd = tcd.narrow(1, 0, seen)?.flatten_all()?.to_vec1::<f32>()?;
         }
         Ok(StepOutput { recon_err, logit, tcd: with_tcd.then_some(&self.tcd[..]) })
     }

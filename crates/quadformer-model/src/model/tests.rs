@@ -119,16 +119,7 @@ fn a_causal_network_reads_only_the_past() {
         assert!(d.max_all().unwrap().to_scalar::<f32>().unwrap() < 1e-5, "{case}");
         // Every weight still learns, and the gradients are finite.
         net.thaw();
-        let trainer = MinMaxTrainer { net: &net, loss: LossConfig::default() };
-        let loss = nn_toolkit::train::TrainableModel::loss(&trainer, &batch(3, 12, 3, 2), 0).unwrap();
-        let grads = loss.backward().unwrap();
-        for (name, var) in vars(&net) {
-            if dcm && name.starts_with("layers.2.attn.w_k") {
-                continue;
-            }
-            let g = grad_norm(&grads, &var);
-            assert!(g > 0.0 && g.is_finite(), "{case}: gradient {g} reaches {name}");
-        }
+        assert_every_weight_learns(&net, &batch(3, 12, 3, 2), &case);
     }
     // A configuration written before the field existed reads as the paper's full-window attention.
     let mut json = serde_json::to_value(tiny(Prior::Tpc, true)).unwrap();
@@ -163,17 +154,23 @@ fn every_parameter_receives_gradient() {
     ];
     for (prior, dcm, class_input) in cases {
         let net = QuadFormerNet::new(&NetConfig { class_input, ..tiny(prior, dcm) }, 10, 3, 5).unwrap();
-        let trainer = MinMaxTrainer { net: &net, loss: LossConfig::default() };
-        let loss = nn_toolkit::train::TrainableModel::loss(&trainer, &batch(3, 10, 3, 2), 0).unwrap();
-        let grads = loss.backward().unwrap();
-        for (name, var) in vars(&net) {
-            // With DCM the last layer's keys feed no later layer and its queries attend to the
-            // previous layer's keys, so its own `w_k` is unused (eq:cross_layer_attention).
-            if dcm && name.starts_with("layers.1.attn.w_k") {
-                continue;
-            }
-            assert!(grad_norm(&grads, &var) > 0.0, "{prior:?} dcm={dcm} {class_input:?}: no gradient reaches {name}");
+        assert_every_weight_learns(&net, &batch(3, 10, 3, 2), &format!("{prior:?} dcm={dcm} {class_input:?}"));
+    }
+}
+
+/// One training loss's gradient reaches every weight of `net` and is finite. With DCM the last
+/// layer's keys feed no later layer and its queries attend to the previous layer's keys, so its
+/// own `w_k` is unused (eq:cross_layer_attention).
+fn assert_every_weight_learns(net: &QuadFormerNet, b: &Batch, case: &str) {
+    let trainer = MinMaxTrainer { net, loss: LossConfig::default() };
+    let grads = nn_toolkit::train::TrainableModel::loss(&trainer, b, 0).unwrap().backward().unwrap();
+    let unused = format!("layers.{}.attn.w_k", net.config().n_layers - 1);
+    for (name, var) in vars(net) {
+        if net.config().dcm && name.starts_with(&unused) {
+            continue;
         }
+        let g = grad_norm(&grads, &var);
+        assert!(g > 0.0 && g.is_finite(), "{case}: gradient {g} reaches {name}");
     }
 }
 
