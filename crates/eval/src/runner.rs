@@ -156,6 +156,10 @@ pub struct ModeMetrics {
     pub mode: String,
     /// Whether validation chose this mode (its scores are the run's scores).
     pub chosen: bool,
+    /// Whether validation chose this mode for the streaming detector (on the validation
+    /// split's streaming scores, [`quadformer_model::QuadFormerDetector::stream`]).
+    #[serde(default)]
+    pub streamed: bool,
     /// Validation F1 at the mode's validation threshold.
     pub valid_f1: f64,
     /// Test F1 at the same threshold.
@@ -376,7 +380,7 @@ fn fit_and_score_quadformer(
         }
     }
     let score_s = start.elapsed().as_secs_f64();
-    let chosen = qf.chosen().mode;
+    let (chosen, streamed) = (qf.chosen().mode, qf.stream().mode);
     let alarms_at = |res: &ModeResult, scores: &[Vec<f64>]| -> Vec<Vec<bool>> {
         scores.iter().map(|s| s.iter().map(|&v| v > res.threshold).collect()).collect()
     };
@@ -388,6 +392,7 @@ fn fit_and_score_quadformer(
         modes.push(ModeMetrics {
             mode: res.mode.name().to_owned(),
             chosen: res.mode == chosen,
+            streamed: res.mode == streamed,
             valid_f1: res.valid_f1,
             test_f1: e.f1(),
             test_auc: e.roc.auc(),

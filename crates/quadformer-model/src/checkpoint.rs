@@ -1,6 +1,6 @@
 //! Checkpoints of a fitted QUADFormer detector: safetensors weights plus a versioned JSON
-//! manifest (config, channels, normaliser, scoring mode and threshold, every mode's validation
-//! result, and the SHA-256 and size of the weights file).
+//! manifest (config, channels, normaliser, scoring mode and threshold, the streamed mode and
+//! threshold, every mode's validation result, and the SHA-256 and size of the weights file).
 //!
 //! [`QuadFormerDetector::encode`] gives the manifest text and the weights bytes; the caller
 //! writes them (eval writes `qf.json` and `qf.safetensors` atomically). `load` checks,
@@ -17,7 +17,7 @@ use std::path::Path;
 use candle_core::Device;
 use serde::{Deserialize, Serialize};
 
-use crate::detector::{ModeResult, QuadFormerConfig, QuadFormerDetector};
+use crate::detector::{ModeResult, QuadFormerConfig, QuadFormerDetector, ScoreMode};
 use crate::error::{ModelError, Result};
 use crate::model::QuadFormerNet;
 use nn_toolkit::saved::{is_plain_name, malformed_json, sha256_hex};
@@ -50,6 +50,14 @@ pub struct Manifest {
     /// a manifest without it streams at `chosen.threshold`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stream_threshold: Option<f64>,
+    /// Mode of the streaming detector, chosen with `stream_threshold`; a manifest without it
+    /// streams `chosen.mode`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stream_mode: Option<ScoreMode>,
+    /// Validation F1 of the streaming detector's scores at `stream_threshold`; a manifest
+    /// without it reports `chosen.valid_f1`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stream_f1: Option<f64>,
     /// File name of the weights, relative to the manifest.
     pub weights_file: String,
     /// Size of the weights file in bytes.
@@ -104,6 +112,11 @@ fn check_results(path: &Path, m: &Manifest) -> Result<()> {
     finite("crit_scale", m.crit_scale)?;
     if let Some(t) = m.stream_threshold {
         finite("stream_threshold", t)?;
+    }
+    if let Some(f1) = m.stream_f1
+        && !(0.0..=1.0).contains(&f1)
+    {
+        return Err(ck(path, format!("stream_f1 must be in [0, 1], got {f1}")));
     }
     let named = m.mode_results.iter().enumerate().map(|(i, r)| (format!("mode_results[{i}]"), r));
     for (field, r) in named.chain([("chosen".to_owned(), &m.chosen)]) {
@@ -172,7 +185,9 @@ impl QuadFormerDetector {
             chosen: self.chosen,
             crit_scale: self.crit_scale,
             mode_results: self.mode_results.clone(),
-            stream_threshold: Some(self.stream_threshold),
+            stream_threshold: Some(self.stream.threshold),
+            stream_mode: Some(self.stream.mode),
+            stream_f1: Some(self.stream.valid_f1),
             weights_file: weights_file.to_owned(),
             weights_bytes: weights.len() as u64,
             weights_sha256: sha256_hex(&weights),
@@ -276,7 +291,12 @@ impl QuadFormerDetector {
             norm: manifest.normaliser,
             chosen: manifest.chosen,
             crit_scale: manifest.crit_scale,
-            stream_threshold: manifest.stream_threshold.unwrap_or(manifest.chosen.threshold),
+            stream: ModeResult {
+                mode: manifest.stream_mode.unwrap_or(manifest.chosen.mode),
+                smooth: 0,
+                threshold: manifest.stream_threshold.unwrap_or(manifest.chosen.threshold),
+                valid_f1: manifest.stream_f1.unwrap_or(manifest.chosen.valid_f1),
+            },
             mode_results: manifest.mode_results,
             report: None,
         })

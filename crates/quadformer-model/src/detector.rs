@@ -13,6 +13,10 @@
 //! Every mode's best-F1 threshold and F1 on the validation split are kept
 //! ([`QuadFormerDetector::mode_results`], the ablation table); the mode with the best
 //! validation F1 is used unless one is forced. Early stopping uses the same validation F1.
+//! The streaming detector ([`OnlineQuadFormer`]) chooses its own mode and threshold the same
+//! way on the validation split's streaming scores ([`QuadFormerDetector::stream`]): a step
+//! scored as the newest of its window is a different score from the stitched batch one, and
+//! the mode that ranks best offline need not rank best there.
 
 use candle_core::{D, Device, Tensor};
 use detection_metrics::{best_f1_smoothing, best_f1_threshold, centred_mean, smoothing};
@@ -42,6 +46,11 @@ impl ScoreMode {
     /// All modes, in the order used to break ties.
     pub const ALL: [ScoreMode; 4] =
         [ScoreMode::Combined, ScoreMode::Classifier, ScoreMode::AnomalyTransformer, ScoreMode::Alg2];
+
+    /// Whether the mode reads the window's TCD (every mode but the classifier).
+    pub fn reads_tcd(self) -> bool {
+        !matches!(self, ScoreMode::Classifier)
+    }
 
     /// Short name for tables.
     pub fn name(self) -> &'static str {
@@ -356,6 +365,19 @@ fn chosen(results: &[ModeResult], forced: Option<ScoreMode>) -> Result<ModeResul
     pick.copied().ok_or_else(|| ModelError::Data { msg: "no scoring mode could be calibrated".into() })
 }
 
+/// The streamed mode: every mode's best-F1 threshold on the validation split's streaming
+/// scores, and the best of them (or the forced mode), chosen as [`chosen`] chooses the batch mode.
+fn stream_choice(streamed: &[(RawScores, &[bool])], crit_scale: f64, forced: Option<ScoreMode>) -> Result<ModeResult> {
+    let mut results = Vec::with_capacity(ScoreMode::ALL.len());
+    for mode in ScoreMode::ALL {
+        let per_flight: Vec<Vec<f64>> = streamed.iter().map(|(s, _)| s.mode(mode, crit_scale)).collect();
+        let flights = per_flight.iter().zip(streamed).map(|(s, (_, l))| (s.as_slice(), *l));
+        let (threshold, valid_f1) = best_f1_threshold(flights).map_err(DetectError::from)?;
+        results.push(ModeResult { mode, smooth: 0, threshold, valid_f1 });
+    }
+    chosen(&results, forced)
+}
+
 /// A fitted QUADFormer detector.
 pub struct QuadFormerDetector {
     pub(crate) config: QuadFormerConfig,
@@ -367,8 +389,9 @@ pub struct QuadFormerDetector {
     pub(crate) norm: Normaliser,
     pub(crate) chosen: ModeResult,
     pub(crate) crit_scale: f64,
-    /// Threshold of the streaming scores of the chosen mode, chosen on validation.
-    pub(crate) stream_threshold: f64,
+    /// The streamed mode and its threshold, chosen on the validation split's streaming scores
+    /// (`smooth` is always 0: a streaming score reads no later step).
+    pub(crate) stream: ModeResult,
     pub(crate) mode_results: Vec<ModeResult>,
     pub(crate) report: Option<TrainReport>,
 }
@@ -378,7 +401,7 @@ impl std::fmt::Debug for QuadFormerDetector {
         f.debug_struct("QuadFormerDetector")
             .field("channels", &self.norm.channels)
             .field("chosen", &self.chosen)
-            .field("stream_threshold", &self.stream_threshold)
+            .field("stream", &self.stream)
             .field("n_params", &self.net.n_params())
             .finish_non_exhaustive()
     }
@@ -448,17 +471,15 @@ impl QuadFormerConfig {
             norm,
             chosen,
             crit_scale: cal.crit_scale,
-            stream_threshold: chosen.threshold,
+            stream: chosen,
             mode_results: cal.results,
             report: Some(report),
         };
         let streamed = valid
             .labelled()
-            .map(|(series, labels)| Ok((det.score_streaming(series)?, labels)))
+            .map(|(series, labels)| Ok((det.online_quadformer().raw_scores(series)?, labels)))
             .collect::<Result<Vec<_>>>()?;
-        det.stream_threshold = best_f1_threshold(streamed.iter().map(|(s, l)| (s.as_slice(), *l)))
-            .map_err(ekf_residue::DetectError::from)?
-            .0;
+        det.stream = stream_choice(&streamed, det.crit_scale, self.score.mode)?;
         Ok(det)
     }
 }
@@ -482,6 +503,12 @@ impl QuadFormerDetector {
     /// The scoring mode in use, its threshold and validation F1.
     pub fn chosen(&self) -> ModeResult {
         self.chosen
+    }
+
+    /// The streamed mode (what [`OnlineQuadFormer`] scores), its threshold and F1 on the
+    /// validation split's streaming scores.
+    pub fn stream(&self) -> ModeResult {
+        self.stream
     }
 
     /// Every mode's validation threshold and F1 (ablation table).
@@ -542,11 +569,11 @@ impl Detector for QuadFormerDetector {
         self.chosen.threshold
     }
 
-    /// Chosen at `fit` on the validation split's streaming scores of the chosen mode: a window
-    /// that ends at the step sees no later step, so its scores are distributed differently from
-    /// the batch scores.
+    /// Chosen at `fit` with the streamed mode on the validation split's streaming scores: a
+    /// window that ends at the step sees no later step, so its scores are distributed
+    /// differently from the batch scores.
     fn streaming_threshold(&self) -> f64 {
-        self.stream_threshold
+        self.stream.threshold
     }
 
     fn online(&self) -> Box<dyn OnlineDetector + '_> {

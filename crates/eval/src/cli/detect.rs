@@ -10,8 +10,9 @@
 //!
 //! With `--streaming` every step is scored as the streaming detector of `quadformer fuse` scores
 //! it (from that step and the ones before it only, `Detector::score_streaming`) and alarms at the
-//! streaming threshold chosen on validation; without it a step's score may use later steps
-//! (QUADFormer averages every window that covers it).
+//! streaming threshold chosen on validation (QUADFormer: in the mode chosen on the streaming
+//! scores, which may differ from the offline one); without it a step's score may use later
+//! steps (QUADFormer averages every window that covers it).
 //!
 //! Every method loads its saved fitted state from the model directory ([`crate::model_dir`],
 //! each file's SHA-256 checked against `model.json`); `detect` never fits.

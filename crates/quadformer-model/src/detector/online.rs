@@ -6,9 +6,9 @@
 //! bound their difference to rounding.
 
 use candle_core::Tensor;
-use ekf_residue::{DetectError, OnlineDecision, OnlineDetector, ResidueError, ResidueStep};
+use ekf_residue::{DetectError, OnlineDecision, OnlineDetector, ResidueError, ResidueSeries, ResidueStep};
 
-use super::{QuadFormerDetector, ScoreMode, combine};
+use super::{QuadFormerDetector, RawScores, ScoreMode, combine};
 use crate::error::{ModelError, Result};
 use crate::model::{GradFlow, QuadFormerNet, Steps};
 use crate::streaming::{StepOutput, StreamingNet};
@@ -121,36 +121,24 @@ impl<'a> OnlineQuadFormer<'a> {
         Self { det, scorer, x: vec![0.0; m] }
     }
 
-    /// The chosen mode's score of the newest step, with the window slid to end at `x`.
-    fn score_newest(&mut self) -> Result<f64> {
-        let mode = self.det.chosen.mode;
-        let reads_tcd = matches!(mode, ScoreMode::Alg2 | ScoreMode::AnomalyTransformer | ScoreMode::Combined);
+    /// The raw scores of the newest step, with the window slid to end at `x`; the two TCD
+    /// scores are `NaN` unless `with_tcd`.
+    fn raw_newest(&mut self, with_tcd: bool) -> Result<StepRaw> {
         let out = match &mut self.scorer {
-            Scorer::Engine(engine) => engine.push(&self.x, reads_tcd)?,
-            Scorer::Candle(window) => window.push(&self.det.net, &self.x, reads_tcd)?,
+            Scorer::Engine(engine) => engine.push(&self.x, with_tcd)?,
+            Scorer::Candle(window) => window.push(&self.det.net, &self.x, with_tcd)?,
         };
         let tcd = out.tcd.unwrap_or_default();
-        let at = || last_of_softmax(tcd, -self.det.config.score.temperature) * f64::from(out.recon_err);
-        let class = || 1.0 / (1.0 + (-f64::from(out.logit)).exp());
-        Ok(match mode {
-            ScoreMode::Alg2 => last_of_softmax(tcd, -1.0),
-            ScoreMode::AnomalyTransformer => at(),
-            ScoreMode::Classifier => class(),
-            ScoreMode::Combined => combine(class(), at(), self.det.crit_scale),
+        Ok(StepRaw {
+            alg2: last_of_softmax(tcd, -1.0),
+            at: last_of_softmax(tcd, -self.det.config.score.temperature) * f64::from(out.recon_err),
+            class: 1.0 / (1.0 + (-f64::from(out.logit)).exp()),
         })
     }
-}
 
-/// The last entry of `softmax(k·v)`, `NaN` for an empty `v`.
-fn last_of_softmax(v: &[f32], k: f64) -> f64 {
-    let Some(&last) = v.last() else { return f64::NAN };
-    let max = v.iter().map(|&x| k * f64::from(x)).fold(f64::NEG_INFINITY, f64::max);
-    let sum: f64 = v.iter().map(|&x| (k * f64::from(x) - max).exp()).sum();
-    (k * f64::from(last) - max).exp() / sum
-}
-
-impl OnlineDetector for OnlineQuadFormer<'_> {
-    fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
+    /// Checks `step` against the detector's channels, slides the window to end at it and
+    /// gives its raw scores (the two TCD scores `NaN` unless `with_tcd`).
+    fn push(&mut self, step: &ResidueStep<'_>, with_tcd: bool) -> Result<StepRaw, DetectError> {
         let (m, k) = (self.det.norm.channels.len(), self.scorer.n_seen());
         if step.dim() != m {
             return Err(ResidueError::StepDim { step_idx: k, what: "r_k", expected: m, got: step.dim() }.into());
@@ -168,11 +156,58 @@ impl OnlineDetector for OnlineQuadFormer<'_> {
             }
         }
         self.det.norm.apply(step, &mut self.x);
-        let score = self.score_newest()?;
+        Ok(self.raw_newest(with_tcd)?)
+    }
+
+    /// The raw streaming scores of every step of `series` in every mode, each step the newest
+    /// of its window: what the streamed mode is chosen from at `fit`.
+    pub(crate) fn raw_scores(mut self, series: &ResidueSeries) -> Result<RawScores, DetectError> {
+        let mut raw = RawScores::default();
+        for step in series.steps() {
+            let s = self.push(&step, true)?;
+            raw.alg2.push(s.alg2);
+            raw.at.push(s.at);
+            raw.class.push(s.class);
+        }
+        Ok(raw)
+    }
+}
+
+/// The raw scores of one streamed step.
+struct StepRaw {
+    alg2: f64,
+    at: f64,
+    class: f64,
+}
+
+impl StepRaw {
+    fn mode(&self, mode: ScoreMode, crit_scale: f64) -> f64 {
+        match mode {
+            ScoreMode::Alg2 => self.alg2,
+            ScoreMode::AnomalyTransformer => self.at,
+            ScoreMode::Classifier => self.class,
+            ScoreMode::Combined => combine(self.class, self.at, crit_scale),
+        }
+    }
+}
+
+/// The last entry of `softmax(k·v)`, `NaN` for an empty `v`.
+fn last_of_softmax(v: &[f32], k: f64) -> f64 {
+    let Some(&last) = v.last() else { return f64::NAN };
+    let max = v.iter().map(|&x| k * f64::from(x)).fold(f64::NEG_INFINITY, f64::max);
+    let sum: f64 = v.iter().map(|&x| (k * f64::from(x) - max).exp()).sum();
+    (k * f64::from(last) - max).exp() / sum
+}
+
+impl OnlineDetector for OnlineQuadFormer<'_> {
+    fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
+        let k = self.scorer.n_seen();
+        let mode = self.det.stream.mode;
+        let score = self.push(step, mode.reads_tcd())?.mode(mode, self.det.crit_scale);
         if !score.is_finite() {
             return Err(DetectError::Numerical { what: format!("non-finite QUADFormer score at step {k}") });
         }
-        Ok(OnlineDecision { score, alarm: score > self.det.stream_threshold })
+        Ok(OnlineDecision { score, alarm: score > self.det.stream.threshold })
     }
 
     fn reset(&mut self) {

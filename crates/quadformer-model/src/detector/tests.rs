@@ -56,10 +56,10 @@ fn fitted() -> &'static QuadFormerDetector {
     })
 }
 
-/// The stitched, unsmoothed scores of the detector's chosen mode: what a streaming window's
-/// last step is compared with.
+/// The stitched, unsmoothed batch scores of the detector's streamed mode: what a streaming
+/// window's last step is compared with.
 fn stitched(det: &QuadFormerDetector, series: &ResidueSeries) -> Vec<f64> {
-    det.raw_scores(series).unwrap().mode(det.chosen.mode, det.crit_scale)
+    det.raw_scores(series).unwrap().mode(det.stream.mode, det.crit_scale)
 }
 
 fn f1(det: &QuadFormerDetector, data: &LabelledResidues) -> f64 {
@@ -194,6 +194,10 @@ fn corrupt_truncated_and_mismatched_checkpoints_are_clear_errors() {
     json["chosen"]["valid_f1"] = serde_json::json!(2.0);
     std::fs::write(&path, json.to_string()).unwrap();
     expect_err("chosen.valid_f1 must be in [0, 1]");
+    let mut json: serde_json::Value = serde_json::from_str(&good_j).unwrap();
+    json["stream_f1"] = serde_json::json!(-0.5);
+    std::fs::write(&path, json.to_string()).unwrap();
+    expect_err("stream_f1 must be in [0, 1]");
     let negative_std = good_j.replacen("\"std\": [\n      ", "\"std\": [\n      -", 1);
     assert_ne!(negative_std, good_j, "the manifest layout changed");
     std::fs::write(&path, negative_std).unwrap();
@@ -234,7 +238,7 @@ fn online_matches_batch_in_every_mode() {
     let f = flight(L, 32, 4.0, false);
     for r in fitted().mode_results() {
         let mut det = QuadFormerDetector::load(&path).unwrap();
-        det.chosen = *r;
+        det.stream = *r;
         let batch = stitched(&det, f.series());
         let mut online = det.online();
         let last = f.series().steps().map(|s| online.update(&s).unwrap()).last().unwrap();
@@ -254,9 +258,9 @@ fn without_the_engine_the_online_detector_streams_through_candle() {
     let one_window = flight(L, 35, 4.0, false);
     for r in fitted().mode_results() {
         let mut engine = QuadFormerDetector::load(&path).unwrap();
-        engine.chosen = *r;
+        engine.stream = *r;
         let mut candle = QuadFormerDetector::load(&path).unwrap();
-        candle.chosen = *r;
+        candle.stream = *r;
         // Forced: the fallback a network the engine cannot represent gets.
         candle.streaming = None;
         assert!(engine.streams_with_engine() && !candle.streams_with_engine());
@@ -289,7 +293,7 @@ fn a_causal_detector_learns_and_streams_through_candle_without_padding() {
     assert!(f > 0.8, "test F1 {f}, chosen {:?}", det.chosen());
     let one_window = flight(L, 35, 4.0, false);
     for r in det.mode_results().to_vec() {
-        det.chosen = r;
+        det.stream = r;
         let batch = stitched(&det, one_window.series());
         let mut online = det.online();
         let streamed: Vec<f64> = one_window.series().steps().map(|s| online.update(&s).unwrap().score).collect();
@@ -309,31 +313,53 @@ fn a_causal_detector_learns_and_streams_through_candle_without_padding() {
     assert_eq!(back.score_streaming(long.series()).unwrap(), det.score_streaming(long.series()).unwrap());
 }
 
+/// The streaming detector's mode and threshold are the best of every mode's best-F1 threshold
+/// on the validation split's streaming scores, whatever mode the offline score uses; a
+/// checkpoint keeps them, and one written before them streams the offline mode and threshold.
 #[test]
-fn the_streaming_threshold_is_chosen_on_validation_streaming_scores_and_saved() {
+fn the_streamed_mode_and_threshold_are_chosen_on_validation_streaming_scores_and_saved() {
     let det = fitted();
     let valid = split(&[4], 240, true);
+    let raw: Vec<(RawScores, &[bool])> =
+        valid.labelled().map(|(s, l)| (det.online_quadformer().raw_scores(s).unwrap(), l)).collect();
+    let best = |mode: ScoreMode| {
+        let scores: Vec<Vec<f64>> = raw.iter().map(|(r, _)| r.mode(mode, det.crit_scale)).collect();
+        best_f1_threshold(scores.iter().zip(&raw).map(|(s, (_, l))| (s.as_slice(), *l))).unwrap()
+    };
+    let stream = det.stream();
+    assert_eq!((det.streaming_threshold(), stream.valid_f1), best(stream.mode));
+    assert!(ScoreMode::ALL.iter().all(|&m| best(m).1 <= stream.valid_f1), "{stream:?}");
+    // The streaming scores are the online detector's, in the streamed mode.
     let streamed: Vec<(Vec<f64>, &[bool])> =
         valid.labelled().map(|(s, l)| (det.score_streaming(s).unwrap(), l)).collect();
-    let (want, _) = best_f1_threshold(streamed.iter().map(|(s, l)| (s.as_slice(), *l))).unwrap();
-    assert_eq!(det.streaming_threshold(), want);
-    // The streaming scores are the online detector's.
+    assert_eq!(best_f1_threshold(streamed.iter().map(|(s, l)| (s.as_slice(), *l))).unwrap(), best(stream.mode));
     let f = flight(3 * L, 33, 4.0, false);
     let mut online = det.online();
     for (step, s) in f.series().steps().zip(det.score_streaming(f.series()).unwrap()) {
         let d = online.update(&step).unwrap();
         assert!((d.score - s).abs() < 1e-9, "{} vs {s}", d.score);
     }
+    // A forced mode is streamed too.
+    let mut forced = config();
+    forced.score.mode = Some(ScoreMode::AnomalyTransformer);
+    forced.train.epochs = 1;
+    let forced = forced.fit(&split(&[1], 240, true), &valid).unwrap();
+    assert_eq!((forced.chosen().mode, forced.stream().mode), (ScoreMode::AnomalyTransformer, ScoreMode::AnomalyTransformer));
+
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
     save(det, &path);
-    assert_eq!(QuadFormerDetector::load(&path).unwrap().streaming_threshold(), want);
-    // A manifest written before streaming thresholds existed streams at the batch threshold.
+    assert_eq!(QuadFormerDetector::load(&path).unwrap().stream(), stream);
+    // A manifest written before streaming thresholds existed streams the batch mode at the
+    // batch threshold.
     let text = std::fs::read_to_string(&path).unwrap();
     let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
-    json.as_object_mut().unwrap().remove("stream_threshold");
+    for key in ["stream_threshold", "stream_mode", "stream_f1"] {
+        json.as_object_mut().unwrap().remove(key);
+    }
     std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
-    assert_eq!(QuadFormerDetector::load(&path).unwrap().streaming_threshold(), det.threshold());
+    let old = QuadFormerDetector::load(&path).unwrap();
+    assert_eq!((old.stream().mode, old.streaming_threshold()), (det.chosen().mode, det.threshold()));
 }
 
 #[test]
