@@ -183,6 +183,51 @@ impl OnlineDetector for Confirmed<'_> {
     }
 }
 
+/// An online detector whose score is the mean of the inner detector's scores on the newest
+/// step and the `width` steps before it (a trailing moving mean: it reads no later step, so a
+/// streaming detector can use it), alarming above `threshold`. One outlying score is diluted,
+/// a run of high scores is not; a strong onset still alarms on its first step. `width = 0`
+/// is the inner detector unchanged, its own alarms included.
+pub struct TrailingMean<'a> {
+    /// The detector whose scores are averaged.
+    pub inner: Box<dyn OnlineDetector + 'a>,
+    /// Earlier steps averaged with the newest.
+    pub width: usize,
+    /// Alarm threshold of the averaged score.
+    pub threshold: f64,
+    /// The inner scores of the latest `width + 1` steps.
+    recent: std::collections::VecDeque<f64>,
+}
+
+impl<'a> TrailingMean<'a> {
+    /// Averages the scores of `inner` over the newest step and the `width` before it.
+    #[must_use]
+    pub fn new(inner: Box<dyn OnlineDetector + 'a>, width: usize, threshold: f64) -> Self {
+        Self { inner, width, threshold, recent: std::collections::VecDeque::with_capacity(width.saturating_add(1)) }
+    }
+}
+
+impl OnlineDetector for TrailingMean<'_> {
+    fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
+        let d = self.inner.update(step)?;
+        if self.width == 0 {
+            return Ok(d);
+        }
+        if self.recent.len() > self.width {
+            self.recent.pop_front();
+        }
+        self.recent.push_back(d.score);
+        #[allow(clippy::cast_precision_loss)] // a handful of steps
+        let score = self.recent.iter().sum::<f64>() / self.recent.len() as f64;
+        Ok(OnlineDecision { score, alarm: score > self.threshold })
+    }
+
+    fn reset(&mut self) {
+        self.inner.reset();
+        self.recent.clear();
+    }
+}
+
 /// A borrowed detector is a detector: [`WindowedOnline`] holds either a reference or a view
 /// that owns nothing (such as a detector's scores before a post-processing step).
 impl<T: Detector + ?Sized> Detector for &T {
@@ -314,6 +359,33 @@ mod tests {
         assert_eq!(alarms(&mut two, &r), [false, false, false, true, true, false, false, true]);
         let mut three = Confirmed::new(Box::new(Above1), 3);
         assert_eq!(alarms(&mut three, &r), [false, false, false, false, true, false, false, false]);
+    }
+
+    /// The trailing mean averages the newest score with the `width` before it: an isolated
+    /// spike is diluted, a run is not, a strong onset alarms at once, and `reset` forgets.
+    #[test]
+    fn a_trailing_mean_averages_the_newest_scores() {
+        let r = [0.0, 3.0, 0.0, 0.0, 1.5, 1.5, 6.0];
+        let scores = |det: &mut TrailingMean<'_>| -> Vec<f64> {
+            let s = [1.0];
+            r.iter()
+                .enumerate()
+                .map(|(i, x)| {
+                    let step = ResidueStep { t: i as f64, r_k: std::slice::from_ref(x), s_k: &s, nis: x * x };
+                    det.update(&step).unwrap().score
+                })
+                .collect()
+        };
+        let mut none = TrailingMean::new(Box::new(Above1), 0, 1.0);
+        assert_eq!(scores(&mut none), r.to_vec());
+        let mut two = TrailingMean::new(Box::new(Above1), 1, 1.0);
+        assert_eq!(scores(&mut two), [0.0, 1.5, 1.5, 0.0, 0.75, 1.5, 3.75]);
+        two.reset();
+        let mut spike = TrailingMean::new(Box::new(Above1), 2, 1.2);
+        let run = [0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 1.5, 1.5, 1.5];
+        assert_eq!(alarms(&mut spike, &run), [false, false, false, false, false, false, false, false, true]);
+        spike.reset();
+        assert_eq!(alarms(&mut spike, &[5.0]), [true], "a strong onset alarms on its first step");
     }
 
     #[test]

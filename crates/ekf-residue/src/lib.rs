@@ -65,7 +65,8 @@ pub mod residues;
 pub mod series;
 
 pub use detector::{
-    Confirmed, Detector, Fit, OnlineDecision, OnlineDetector, Rethresholded, WindowedOnline, check_channels,
+    Confirmed, Detector, Fit, OnlineDecision, OnlineDetector, Rethresholded, TrailingMean, WindowedOnline,
+    check_channels,
 };
 pub use ekf::{CovarianceUpdate, DivergenceGuard, DynInnovation, Ekf, Innovation};
 pub use error::{DetectError, FilterError, ResidueError};

@@ -19,7 +19,8 @@
 //!   own exclusions change the residues (after a false exclusion the estimate has drifted);
 //!   the second pick sees that, the first cannot. The same flights choose how many
 //!   consecutive raw alarms an alarm needs among the configured candidates
-//!   ([`LoopSetting::confirm`]; by default 1, every raw alarm).
+//!   ([`LoopSetting::confirm`]; by default 1, every raw alarm), and over how many of its
+//!   newest scores the detector's score is averaged ([`LoopSetting::smooth`]).
 //! - Exclusions by a fitted detector last at most the longest validation attack plus 1 s
 //!   ([`exclusion_bound_s`]); then GPS is re-admitted with a position reset, as EKF2 does.
 //! - Detectors: the fitted QUADFormer, LSTM, CNN, CUSUM, SPRT and χ² test; the PX4 EKF2 gate
@@ -38,7 +39,7 @@ use attack_inject::AttackedSample;
 use attack_inject::{AttackConfig, AttackInterval, AttackKind};
 use detection_metrics::{Confusion, best_f1_threshold};
 use ekf_residue::residues::{FilterConfig, GPS_CHANNELS};
-use ekf_residue::{Confirmed, Detector, LabelledResidues, OnlineDetector};
+use ekf_residue::{Confirmed, Detector, LabelledResidues, OnlineDetector, TrailingMean};
 use rayon::prelude::*;
 use resilient_fusion::estimator::ResilientConfig;
 use resilient_fusion::gates::{InnovationGate, Oracle};
@@ -208,6 +209,9 @@ pub struct ClosedLoopRow {
     /// Consecutive raw alarms an alarm of the fitted detectors needs in the loop
     /// ([`LoopSetting::confirm`]).
     pub confirm: Option<u64>,
+    /// Earlier scores the fitted detectors' loop score averages with the newest
+    /// ([`LoopSetting::smooth`]).
+    pub smooth: Option<u64>,
     /// Per-fix precision of the alarms.
     pub precision: f64,
     /// Per-fix recall.
@@ -364,7 +368,8 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
     for m in methods {
         if let LoopMethod::Fitted(method) = *m {
             let det = fit(method, &cfgs, &train, &valid)?.detector;
-            let setting = loop_setting(det.as_ref(), &valid_flights, &filter, &opts.config.loop_confirm)
+            let candidates = LoopCandidates { confirm: &opts.config.loop_confirm, smooth: &opts.config.loop_smooth };
+            let setting = loop_setting(det.as_ref(), &valid_flights, &filter, candidates)
                 .map_err(|e| ReproduceError::Config(format!("closed loop {}: {e}", unit.slug())))?;
             fitted.push((method, det, setting));
         }
@@ -442,6 +447,19 @@ pub struct LoopSetting {
     /// Consecutive raw alarms (score above `threshold`) before the alarm stands
     /// ([`ekf_residue::Confirmed`]); 1 alarms on every raw alarm.
     pub confirm: usize,
+    /// Earlier steps whose scores the loop score averages with the newest one's
+    /// ([`ekf_residue::TrailingMean`]); 0 is the detector's streaming score.
+    #[serde(default)]
+    pub smooth: usize,
+}
+
+/// The candidates [`loop_setting`] flies besides the thresholds.
+#[derive(Debug, Clone, Copy)]
+pub struct LoopCandidates<'a> {
+    /// Of [`LoopSetting::confirm`] (`MatrixConfig::loop_confirm`).
+    pub confirm: &'a [usize],
+    /// Of [`LoopSetting::smooth`] (`MatrixConfig::loop_smooth`).
+    pub smooth: &'a [usize],
 }
 
 /// The loop setting of a fitted detector (module doc), from the trained families' validation
@@ -454,9 +472,11 @@ pub struct LoopSetting {
 ///    [`LOOP_THRESHOLD_QUANTILES`] of its scores on clean fixes.
 /// 3. Fly them again at each candidate with that look-back; the threshold whose own alarms
 ///    have the highest per-fix F1 wins (ties: the higher threshold).
-/// 4. Steps 1–3 are taken for each of the `confirm` candidates (an alarm stands after that
-///    many consecutive raw alarms, [`LoopSetting::confirm`]; `MatrixConfig::loop_confirm`);
-///    the one with the highest F1 wins (ties: the earlier candidate).
+/// 4. Steps 1–3 are taken for each pair of candidates of the score's trailing mean
+///    ([`LoopSetting::smooth`]; `MatrixConfig::loop_smooth`) and of the confirmation (an
+///    alarm stands after that many consecutive raw alarms, [`LoopSetting::confirm`];
+///    `MatrixConfig::loop_confirm`); the pair with the highest F1 wins (ties: the earlier
+///    pair, smoothing varying fastest).
 ///
 /// Every flight, from step 1 on, bounds an exclusion by [`exclusion_bound_s`].
 ///
@@ -464,37 +484,40 @@ pub struct LoopSetting {
 /// a drift the detector then keeps alarming on (lock-out) loses to one that does not.
 ///
 /// # Errors
-/// A flight's error, no attacked fix among the validation flights, or a `confirm` candidate
-/// of 0.
+/// A flight's error, no attacked fix among the validation flights, a `confirm` candidate
+/// of 0, or no candidate.
 pub fn loop_setting(
     det: &dyn Detector,
     valid: &[PlannedFlight],
     filter: &FilterConfig,
-    confirm: &[usize],
+    candidates: LoopCandidates<'_>,
 ) -> std::result::Result<LoopSetting, String> {
     let mut best: Option<(LoopSetting, f64)> = None;
-    for &confirm in confirm {
+    for &confirm in candidates.confirm {
         if confirm == 0 {
             return Err("loop_confirm: a confirmation needs at least 1 raw alarm, got 0".into());
         }
-        let (setting, f1) = loop_setting_at(det, valid, filter, confirm)?;
-        if best.is_none_or(|(_, b)| f1 > b) {
-            best = Some((setting, f1));
+        for &smooth in candidates.smooth {
+            let (setting, f1) = loop_setting_at(det, valid, filter, confirm, smooth)?;
+            if best.is_none_or(|(_, b)| f1 > b) {
+                best = Some((setting, f1));
+            }
         }
     }
-    best.map(|(s, _)| s).ok_or_else(|| "loop_confirm: no candidate confirmation".to_owned())
+    best.map(|(s, _)| s).ok_or_else(|| "loop_confirm, loop_smooth: no candidate".to_owned())
 }
 
-/// Steps 1–3 of [`loop_setting`] with alarms confirmed over `confirm` steps: the setting and
-/// its validation F1.
+/// Steps 1–3 of [`loop_setting`] with alarms confirmed over `confirm` steps and scores
+/// averaged over `smooth` earlier ones: the setting and its validation F1.
 fn loop_setting_at(
     det: &dyn Detector,
     valid: &[PlannedFlight],
     filter: &FilterConfig,
     confirm: usize,
+    smooth: usize,
 ) -> std::result::Result<(LoopSetting, f64), String> {
     let reset_after_s = exclusion_bound_s(valid);
-    let fitted = LoopSetting { threshold: det.streaming_threshold(), lookback_s: 0.0, reset_after_s, confirm };
+    let fitted = LoopSetting { threshold: det.streaming_threshold(), lookback_s: 0.0, reset_after_s, confirm, smooth };
     let traces = fly_family(valid, filter, Pilot::Fitted(det, fitted), 0.0)?;
     let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
     let lookback_s = loop_metrics(&steps, false).delay_p90_s.unwrap_or(0.0).clamp(0.0, MAX_LOOKBACK_S);
@@ -514,7 +537,7 @@ fn loop_setting_at(
     let flown: Vec<(f64, f64)> = candidates
         .par_iter()
         .map(|&threshold| {
-            let setting = LoopSetting { threshold, lookback_s, reset_after_s, confirm };
+            let setting = LoopSetting { threshold, lookback_s, reset_after_s, confirm, smooth };
             let traces = fly_family(valid, filter, Pilot::Fitted(det, setting), 0.0)?;
             let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
             Ok((threshold, loop_metrics(&steps, false).f1))
@@ -523,7 +546,7 @@ fn loop_setting_at(
     flown
         .into_iter()
         .max_by(|a, b| a.1.total_cmp(&b.1).then(a.0.total_cmp(&b.0)))
-        .map(|(threshold, f1)| (LoopSetting { threshold, lookback_s, reset_after_s, confirm }, f1))
+        .map(|(threshold, f1)| (LoopSetting { threshold, lookback_s, reset_after_s, confirm, smooth }, f1))
         .ok_or_else(|| format!("{} loop threshold: no candidate", det.name()))
 }
 
@@ -568,7 +591,8 @@ fn fly_family(
                     cfg.readmit_nis = Some(ResilientConfig::CHI2_3_99);
                     cfg.rollback_lookback_s = setting.lookback_s;
                     cfg.reset_after_s = setting.reset_after_s;
-                    Some(Box::new(Confirmed::new(d.online_at(setting.threshold), setting.confirm)))
+                    let scored = TrailingMean::new(d.online_at(setting.threshold), setting.smooth, setting.threshold);
+                    Some(Box::new(Confirmed::new(Box::new(scored), setting.confirm)))
                 }
                 Pilot::Px4Ekf2 => {
                     cfg.hold_s = 0.0;
@@ -654,6 +678,7 @@ fn row(
         lookback_s: setting.map(|s| s.lookback_s),
         reset_after_s: setting.and_then(|s| s.reset_after_s),
         confirm: setting.map(|s| s.confirm as u64),
+        smooth: setting.map(|s| s.smooth as u64),
         precision: m.precision,
         recall: m.recall,
         f1: m.f1,
@@ -803,7 +828,8 @@ fn unit_key(
 ) -> Result<String> {
     let mut h = Sha256::new();
     h.update(format!("quadformer-rs closed loop v{UNIT_VERSION} {}\n", env!("CARGO_PKG_VERSION")).as_bytes());
-    h.update(format!("{unit:?} {methods:?} {LATENCIES_S:?} {:?}\n", opts.config.loop_confirm).as_bytes());
+    let (confirm, smooth) = (&opts.config.loop_confirm, &opts.config.loop_smooth);
+    h.update(format!("{unit:?} {methods:?} {LATENCIES_S:?} {confirm:?} {smooth:?}\n").as_bytes());
     for (f, c) in cfgs {
         let key = c.get().cache_key().map_err(dataset_err(unit, *f))?;
         h.update(key.as_bytes());
@@ -1127,7 +1153,7 @@ mod tests {
             Family::Ramp,
             "X",
             0.0,
-            Some(LoopSetting { threshold: 1.0, lookback_s: 0.5, reset_after_s: None, confirm: 2 }),
+            Some(LoopSetting { threshold: 1.0, lookback_s: 0.5, reset_after_s: None, confirm: 2, smooth: 0 }),
             &[f.as_slice()],
         );
         assert_eq!((r.precision, r.recall), (7.0 / 12.0, 0.7));

@@ -103,6 +103,11 @@ pub struct MatrixConfig {
     /// best ([`crate::closed_loop::loop_setting`]). Default `[1]`, every raw alarm
     /// (docs/decisions/091-closed-loop.md).
     pub loop_confirm: Vec<usize>,
+    /// Candidates of the closed loop's score smoothing: the number of earlier scores a fitted
+    /// detector's loop score averages with the newest one (`ekf_residue::TrailingMean`); each
+    /// fitted detector flies its validation flights at each with each `loop_confirm` and keeps
+    /// the best. 0 is the detector's streaming score.
+    pub loop_smooth: Vec<usize>,
     /// Whether the closed loop's QUADFormer attends causally (`NetConfig::causal`): every
     /// position of its training windows is a decision on the past, as every decision in the
     /// loop is. Tables I and II keep `methods.quadformer` as it is. Default `true`, chosen on
@@ -120,6 +125,7 @@ impl Default for MatrixConfig {
             sweep_sigma: vec![0.5, 1.0, 2.0, 3.0, 5.0, 10.0],
             ablation_fractions: vec![0.01, 0.1, 1.0],
             loop_confirm: vec![1],
+            loop_smooth: vec![0],
             loop_causal: true,
         }
     }
@@ -762,7 +768,10 @@ fn write_mode_summary(s: &mut String, records: &[RunRecord]) {
          \"Chosen in\" counts the runs whose offline score validation chose the mode for, \
          \"streamed in\" those whose streaming detector it chose it for.\n"
     );
-    let _ = writeln!(s, "| mode | chosen in | streamed in | valid F1 | test F1 | test ROC AUC |\n|---|---|---|---|---|---|");
+    let _ = writeln!(
+        s,
+        "| mode | chosen in | streamed in | valid F1 | test F1 | test ROC AUC |\n|---|---|---|---|---|---|"
+    );
     for (i, m) in first.modes.iter().enumerate() {
         let of = |f: fn(&ModeMetrics) -> f64| -> Vec<f64> {
             runs.iter().filter_map(|r| r.modes.get(i)).filter(|x| x.mode == m.mode).map(f).collect()

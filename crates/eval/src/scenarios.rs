@@ -90,6 +90,16 @@ impl FusionDetector {
         }
     }
 
+    /// The threshold its online detector alarms above: the NIS gate's χ²₃ quantile, or a
+    /// fitted detector's streaming threshold.
+    #[must_use]
+    pub fn threshold(&self) -> f64 {
+        match self {
+            Self::Nis => NisGate::CHI2_3_999,
+            Self::Batch(d) => d.streaming_threshold(),
+        }
+    }
+
     /// A fresh online detector for one flight.
     ///
     /// # Errors

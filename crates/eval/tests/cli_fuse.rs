@@ -180,6 +180,33 @@ fn fuse_flies_a_flight_folder_in_the_loop() {
     assert!(caught * 2 > attacked, "GPS excluded on {caught} of {attacked} attacked fixes");
     let md = std::fs::read_to_string(out.join("loop.md")).unwrap();
     assert!(md.contains("| precision / recall / F1 |"), "{md}");
+    // A trailing mean of three scores still excludes GPS on most attacked fixes, and the
+    // report names it.
+    let smoothed = dir.path().join("smoothed");
+    let o = quadformer(&[
+        "fuse",
+        "--in",
+        s(&fixture),
+        "--detector",
+        "chi2",
+        "--latency-s",
+        "0",
+        "--smooth",
+        "2",
+        "--out",
+        s(&smoothed),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let md = std::fs::read_to_string(smoothed.join("loop.md")).unwrap();
+    assert!(md.contains("--confirm 1 --smooth 2`"), "{md}");
+    let mut r = csv::Reader::from_path(smoothed.join("loop.csv")).unwrap();
+    let (mut attacked, mut caught) = (0, 0);
+    for rec in r.records() {
+        let rec = rec.unwrap();
+        attacked += usize::from(&rec[1] == "1");
+        caught += usize::from(&rec[1] == "1" && &rec[5] == "1");
+    }
+    assert!(caught * 2 > attacked, "smoothed: GPS excluded on {caught} of {attacked} attacked fixes");
     // A scenario and a folder at once is refused.
     let o = quadformer(&["fuse", "--scenario", "eight", "--in", s(&fixture), "--out", s(&out)]);
     assert!(!o.status.success());

@@ -344,7 +344,10 @@ fn the_streamed_mode_and_threshold_are_chosen_on_validation_streaming_scores_and
     forced.score.mode = Some(ScoreMode::AnomalyTransformer);
     forced.train.epochs = 1;
     let forced = forced.fit(&split(&[1], 240, true), &valid).unwrap();
-    assert_eq!((forced.chosen().mode, forced.stream().mode), (ScoreMode::AnomalyTransformer, ScoreMode::AnomalyTransformer));
+    assert_eq!(
+        (forced.chosen().mode, forced.stream().mode),
+        (ScoreMode::AnomalyTransformer, ScoreMode::AnomalyTransformer)
+    );
 
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("qf.json");
