@@ -339,15 +339,24 @@ mod tests {
         fn reset(&mut self) {}
     }
 
-    fn alarms(det: &mut dyn OnlineDetector, r: &[f64]) -> Vec<bool> {
+    /// The decisions of `det` on one-channel residues `r`, one step per second.
+    fn decisions(det: &mut dyn OnlineDetector, r: &[f64]) -> Vec<OnlineDecision> {
         let s = [1.0];
         r.iter()
             .enumerate()
             .map(|(i, x)| {
                 let step = ResidueStep { t: i as f64, r_k: std::slice::from_ref(x), s_k: &s, nis: x * x };
-                det.update(&step).unwrap().alarm
+                det.update(&step).unwrap()
             })
             .collect()
+    }
+
+    fn alarms(det: &mut dyn OnlineDetector, r: &[f64]) -> Vec<bool> {
+        decisions(det, r).iter().map(|d| d.alarm).collect()
+    }
+
+    fn scores(det: &mut dyn OnlineDetector, r: &[f64]) -> Vec<f64> {
+        decisions(det, r).iter().map(|d| d.score).collect()
     }
 
     #[test]
@@ -366,20 +375,10 @@ mod tests {
     #[test]
     fn a_trailing_mean_averages_the_newest_scores() {
         let r = [0.0, 3.0, 0.0, 0.0, 1.5, 1.5, 6.0];
-        let scores = |det: &mut TrailingMean<'_>| -> Vec<f64> {
-            let s = [1.0];
-            r.iter()
-                .enumerate()
-                .map(|(i, x)| {
-                    let step = ResidueStep { t: i as f64, r_k: std::slice::from_ref(x), s_k: &s, nis: x * x };
-                    det.update(&step).unwrap().score
-                })
-                .collect()
-        };
         let mut none = TrailingMean::new(Box::new(Above1), 0, 1.0);
-        assert_eq!(scores(&mut none), r.to_vec());
+        assert_eq!(scores(&mut none, &r), r.to_vec());
         let mut two = TrailingMean::new(Box::new(Above1), 1, 1.0);
-        assert_eq!(scores(&mut two), [0.0, 1.5, 1.5, 0.0, 0.75, 1.5, 3.75]);
+        assert_eq!(scores(&mut two, &r), [0.0, 1.5, 1.5, 0.0, 0.75, 1.5, 3.75]);
         two.reset();
         let mut spike = TrailingMean::new(Box::new(Above1), 2, 1.2);
         let run = [0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 1.5, 1.5, 1.5];

@@ -155,6 +155,17 @@ fn fuse_rejects_bad_arguments() {
     assert!(!out.join("scenarios.csv").exists());
 }
 
+/// `(t, attacked, alarm, gps_excluded)` per fix of a `loop.csv`.
+fn loop_rows(path: &Path) -> Vec<(f64, u8, u8, u8)> {
+    let mut r = csv::Reader::from_path(path).unwrap();
+    r.records()
+        .map(|rec| {
+            let rec = rec.unwrap();
+            (rec[0].parse().unwrap(), rec[1].parse().unwrap(), rec[4].parse().unwrap(), rec[5].parse().unwrap())
+        })
+        .collect()
+}
+
 /// `fuse --in`: a flight folder flown in the loop. The fixture's recorded attack is re-applied
 /// online, so the labels of loop.csv are attack.csv's, and a χ² detector fitted on the quick
 /// cell excludes GPS on most attacked fixes.
@@ -165,14 +176,7 @@ fn fuse_flies_a_flight_folder_in_the_loop() {
     let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/flight-60s");
     let o = quadformer(&["fuse", "--in", s(&fixture), "--detector", "chi2", "--latency-s", "0", "--out", s(&out)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let mut r = csv::Reader::from_path(out.join("loop.csv")).unwrap();
-    let rows: Vec<(f64, u8, u8, u8)> = r
-        .records()
-        .map(|rec| {
-            let rec = rec.unwrap();
-            (rec[0].parse().unwrap(), rec[1].parse().unwrap(), rec[4].parse().unwrap(), rec[5].parse().unwrap())
-        })
-        .collect();
+    let rows = loop_rows(&out.join("loop.csv"));
     let attack = eval::io::read_attack(&fixture.join("attack.csv")).unwrap();
     let attacked = rows.iter().filter(|r| r.1 == 1).count();
     assert_eq!(attacked, attack.iter().filter(|a| a.label).count(), "every recorded attack re-applied");
@@ -199,13 +203,9 @@ fn fuse_flies_a_flight_folder_in_the_loop() {
     assert!(o.status.success(), "{}", stderr(&o));
     let md = std::fs::read_to_string(smoothed.join("loop.md")).unwrap();
     assert!(md.contains("--confirm 1 --smooth 2`"), "{md}");
-    let mut r = csv::Reader::from_path(smoothed.join("loop.csv")).unwrap();
-    let (mut attacked, mut caught) = (0, 0);
-    for rec in r.records() {
-        let rec = rec.unwrap();
-        attacked += usize::from(&rec[1] == "1");
-        caught += usize::from(&rec[1] == "1" && &rec[5] == "1");
-    }
+    let rows = loop_rows(&smoothed.join("loop.csv"));
+    let attacked = rows.iter().filter(|r| r.1 == 1).count();
+    let caught = rows.iter().filter(|r| r.1 == 1 && r.3 == 1).count();
     assert!(caught * 2 > attacked, "smoothed: GPS excluded on {caught} of {attacked} attacked fixes");
     // A scenario and a folder at once is refused.
     let o = quadformer(&["fuse", "--scenario", "eight", "--in", s(&fixture), "--out", s(&out)]);
