@@ -100,13 +100,13 @@ pub struct MatrixConfig {
     pub ablation_fractions: Vec<f64>,
     /// Candidates of the closed loop's alarm confirmation, consecutive raw alarms before an
     /// alarm stands; each fitted detector flies its validation flights at each and keeps the
-    /// best ([`crate::closed_loop::loop_setting`]). Default `[1]`, every raw alarm
-    /// (docs/decisions/091-closed-loop.md).
+    /// best ([`crate::closed_loop::loop_setting`]). Default `[1, 2]`: every raw alarm, or two
+    /// in a row (docs/decisions/091-closed-loop.md).
     pub loop_confirm: Vec<usize>,
     /// Candidates of the closed loop's score smoothing: the number of earlier scores a fitted
     /// detector's loop score averages with the newest one (`ekf_residue::TrailingMean`); each
     /// fitted detector flies its validation flights at each with each `loop_confirm` and keeps
-    /// the best. 0 is the detector's streaming score.
+    /// the best. 0 is the detector's streaming score. Default `[0, 2]` (decision 091).
     pub loop_smooth: Vec<usize>,
     /// Whether the closed loop's QUADFormer attends causally (`NetConfig::causal`): every
     /// position of its training windows is a decision on the past, as every decision in the
@@ -124,8 +124,8 @@ impl Default for MatrixConfig {
             model2_channels: Model2Channels::VoGps,
             sweep_sigma: vec![0.5, 1.0, 2.0, 3.0, 5.0, 10.0],
             ablation_fractions: vec![0.01, 0.1, 1.0],
-            loop_confirm: vec![1],
-            loop_smooth: vec![0],
+            loop_confirm: vec![1, 2],
+            loop_smooth: vec![0, 2],
             loop_causal: true,
         }
     }
