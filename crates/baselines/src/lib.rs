@@ -33,6 +33,7 @@ pub mod cusum;
 pub mod error;
 pub mod features;
 pub mod lstm;
+pub mod lstm_online;
 pub mod nn;
 pub mod px4_gate;
 pub mod sprt;

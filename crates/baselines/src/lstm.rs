@@ -54,6 +54,16 @@ impl LstmLayer {
         })
     }
 
+    /// The weights as row-major `f32` buffers: `W_ih` (`4h × m`), `W_hh` (`4h × h`) and
+    /// `b_ih + b_hh` (`4h`, summed as [`LstmLayer::forward`] sums them).
+    ///
+    /// # Errors
+    /// candle errors.
+    pub(crate) fn weights(&self) -> candle_core::Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
+        let flat = |t: &Tensor| t.flatten_all()?.to_vec1::<f32>();
+        Ok((flat(&self.w_ih)?, flat(&self.w_hh)?, (&self.b_ih + &self.b_hh)?.to_vec1::<f32>()?))
+    }
+
     /// Hidden states of every step of `x` (`b × l × m`), starting from zero state: `b × l × h`.
     ///
     /// # Errors
@@ -128,6 +138,31 @@ fn activate(row: &mut [f32], h: usize) {
     sigmoid_in_place(o);
 }
 
+/// The cell's forward pass on `b` rows: `act` holds the gates before activation (`b × 4h`,
+/// activated in place), `c_prev` the previous cell states (`b × h`), and `out` receives
+/// `[h_t | c_t]` (`b × 2h`). The custom op and the streaming LSTM ([`crate::lstm_online`]) both
+/// compute the cell here, so they agree bit for bit.
+pub(crate) fn cell_forward(act: &mut [f32], c_prev: &[f32], out: &mut [f32], h: usize) {
+    vmath::vectorized(
+        #[inline(always)]
+        || {
+            for ((a, cp), o) in act.chunks_exact_mut(4 * h).zip(c_prev.chunks_exact(h)).zip(out.chunks_exact_mut(2 * h))
+            {
+                activate(a, h);
+                let (ho, co) = o.split_at_mut(h);
+                for j in 0..h {
+                    co[j] = a[h + j] * cp[j] + a[j] * a[2 * h + j];
+                    ho[j] = co[j];
+                }
+                tanh_in_place(ho);
+                for j in 0..h {
+                    ho[j] *= a[3 * h + j];
+                }
+            }
+        },
+    );
+}
+
 impl CustomOp2 for LstmCell {
     fn name(&self) -> &'static str {
         "lstm-cell"
@@ -144,25 +179,7 @@ impl CustomOp2 for LstmCell {
         let (gates, c_prev) = (f32_slice(self.name(), s1, l1)?, f32_slice(self.name(), s2, l2)?);
         let mut act = gates.to_vec();
         let mut out = vec![0f32; b * 2 * h];
-        vmath::vectorized(
-            #[inline(always)]
-            || {
-                for ((a, cp), o) in
-                    act.chunks_exact_mut(4 * h).zip(c_prev.chunks_exact(h)).zip(out.chunks_exact_mut(2 * h))
-                {
-                    activate(a, h);
-                    let (ho, co) = o.split_at_mut(h);
-                    for j in 0..h {
-                        co[j] = a[h + j] * cp[j] + a[j] * a[2 * h + j];
-                        ho[j] = co[j];
-                    }
-                    tanh_in_place(ho);
-                    for j in 0..h {
-                        ho[j] *= a[3 * h + j];
-                    }
-                }
-            },
-        );
+        cell_forward(&mut act, c_prev, &mut out, h);
         Ok((CpuStorage::F32(out), Shape::from((b, 2 * h))))
     }
 

@@ -40,6 +40,7 @@ use serde::{Deserialize, Serialize};
 use crate::common::{fit_channels, labelled_valid};
 use crate::error::{BaselineError, Result};
 use crate::lstm::LstmLayer;
+use crate::lstm_online::{LstmOnline, LstmWeights};
 
 /// Budget of `hidden` (CNN channels, LSTM hidden size): weights and activations grow with
 /// its square.
@@ -187,6 +188,14 @@ pub trait PerStepNet: Send + Sync {
     /// # Errors
     /// Any candle error.
     fn logits(&self, x: &Tensor) -> candle_core::Result<Tensor>;
+
+    /// The network's own streaming detector for windows of `l` steps normalised by `norm`,
+    /// alarming when the newest step's logit exceeds `threshold`; it must score exactly what
+    /// [`PerStepNet::logits`] gives the last step of the window. `None` (the default): the
+    /// detector re-scores each window with [`PerStepNet::logits`] ([`WindowedOnline`]).
+    fn online<'a>(&self, _norm: &'a Normaliser, _l: usize, _threshold: f64) -> Option<Box<dyn OnlineDetector + 'a>> {
+        None
+    }
 }
 
 /// The CNN of the module docs.
@@ -238,6 +247,27 @@ impl PerStepNet for LstmNet {
     fn logits(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         let h = self.lstm.forward(x)?;
         self.head.forward(&h)?.squeeze(D::Minus1)
+    }
+
+    /// [`LstmOnline`]: the recurrence without candle, bit for bit the same logits.
+    fn online<'a>(&self, norm: &'a Normaliser, l: usize, threshold: f64) -> Option<Box<dyn OnlineDetector + 'a>> {
+        let weights = self.weights().ok()?;
+        Some(Box::new(LstmOnline::new(weights, norm, l, threshold)))
+    }
+}
+
+impl LstmNet {
+    /// The weights as [`LstmOnline`] reads them.
+    fn weights(&self) -> candle_core::Result<LstmWeights> {
+        let (w_ih, w_hh, bias) = self.lstm.weights()?;
+        let h = bias.len() / 4;
+        let head_w = self.head.weight().flatten_all()?.to_vec1::<f32>()?;
+        let head_b = match self.head.bias() {
+            Some(b) => b.flatten_all()?.to_vec1::<f32>()?.first().copied().unwrap_or(0.0),
+            None => 0.0,
+        };
+        let m = if h == 0 { 0 } else { w_ih.len() / (4 * h) };
+        Ok(LstmWeights { m, h, w_ih, w_hh, bias, head_w, head_b })
     }
 }
 
@@ -460,9 +490,12 @@ impl<N: PerStepNet> Detector for NeuralDetector<N> {
 
     /// Streaming re-scores the last `l` steps as one window and reports its last step's
     /// stitched logit, never smoothed (the batch score averages the windows covering a step,
-    /// and may smooth them over later steps, so the two agree only approximately).
+    /// and may smooth them over later steps, so the two agree only approximately). The LSTM
+    /// does so without candle ([`LstmOnline`], the same logits bit for bit); the CNN through
+    /// [`WindowedOnline`].
     fn online(&self) -> Box<dyn OnlineDetector + '_> {
-        Box::new(WindowedOnline::new(Stitched(self), self.window.len))
+        let (l, threshold) = (self.window.len, self.stream_threshold);
+        self.net.online(&self.norm, l, threshold).unwrap_or_else(|| Box::new(WindowedOnline::new(Stitched(self), l)))
     }
 
     fn online_window(&self) -> usize {
@@ -472,7 +505,7 @@ impl<N: PerStepNet> Detector for NeuralDetector<N> {
 
 /// A fitted network's stitched logits without the offline smoothing: what its streaming
 /// detector re-scores on each window.
-struct Stitched<'a, N>(&'a NeuralDetector<N>);
+pub(crate) struct Stitched<'a, N>(pub(crate) &'a NeuralDetector<N>);
 
 impl<N: PerStepNet> Detector for Stitched<'_, N> {
     fn name(&self) -> &str {

@@ -1,7 +1,8 @@
-//! Bounds-checked matrix products on strided `f32` views of slices, for the streaming engine
-//! (`quadformer_model::streaming`): the `gemm` crate's kernel (the one candle's CPU `matmul` calls)
-//! writing into a caller-owned buffer, so that a streaming decision allocates and zero-fills
-//! nothing.
+//! Bounds-checked matrix products on strided `f32` views of slices, for the streaming engines
+//! (`quadformer_model::streaming`, `baselines::lstm_online`): the `gemm` crate's kernel (the one
+//! candle's CPU `matmul` calls) writing into a caller-owned buffer, so that a streaming decision
+//! allocates and zero-fills nothing. Given the shapes and strides candle gives it, it computes
+//! candle's product bit for bit.
 //!
 //! `gemm::gemm` takes raw pointers and strides. [`matmul`] accepts only views whose every
 //! element lies inside its slice ([`MatRef::new`], [`MatMut::new`]) and whose shapes agree; the
