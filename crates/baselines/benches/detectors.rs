@@ -2,7 +2,7 @@
 //! - statistical detectors: batch scoring throughput in residue steps per second (target
 //!   ≥ 10 M steps/s) and the CUSUM online update;
 //! - learning detectors: training time (one SVM fit at fixed `(C, γ)`; one CNN/LSTM epoch) and
-//!   per-step inference.
+//!   per-step inference, batch and streaming (`online()`, one step at a time).
 //!
 //! Data: synthetic Model-I-like residues (`baselines::synthetic`, 6 channels, 10 Hz).
 // A benchmark is not library code: a failed fit should stop it loudly.
@@ -94,6 +94,26 @@ fn learning(c: &mut Criterion) {
     g.throughput(Throughput::Elements(test.len() as u64));
     for det in [&svm as &dyn Detector, &cnn, &lstm] {
         g.bench_function(det.name(), |b| b.iter(|| black_box(det.score(black_box(&test)).expect("score"))));
+    }
+    g.finish();
+
+    // The streaming decision of the closed loop: one `online()` update, the newest step the
+    // last of its window (CNN: candle on the window; LSTM: `baselines::lstm_online`).
+    let stream: Vec<_> = test.steps().take(1_000).collect();
+    let mut g = c.benchmark_group("learning_online");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(stream.len() as u64));
+    for det in [&cnn as &dyn Detector, &lstm] {
+        g.bench_function(det.name(), |b| {
+            b.iter(|| {
+                let mut online = det.online();
+                let mut n = 0usize;
+                for step in &stream {
+                    n += usize::from(online.update(step).expect("update").alarm);
+                }
+                black_box(n)
+            })
+        });
     }
     g.finish();
 }

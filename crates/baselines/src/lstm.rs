@@ -54,6 +54,11 @@ impl LstmLayer {
         })
     }
 
+    /// Input width `m` and hidden size `h`.
+    pub fn dims(&self) -> (usize, usize) {
+        (self.w_ih.dims().get(1).copied().unwrap_or(0), self.hidden)
+    }
+
     /// The weights as row-major `f32` buffers: `W_ih` (`4h × m`), `W_hh` (`4h × h`) and
     /// `b_ih + b_hh` (`4h`, summed as [`LstmLayer::forward`] sums them).
     ///

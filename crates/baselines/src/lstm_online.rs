@@ -1,6 +1,6 @@
-//! The streaming LSTM detector ([`LstmOnline`]): each new residue is scored as the last step of
-//! the window of the `l` latest ones, exactly as the batch forward pass of
-//! [`crate::nn::LstmNet`] scores that window, without candle.
+//! The streaming LSTM detector ([`OnlineLstm`], what [`crate::Lstm`]'s `online()` returns):
+//! each new residue is scored as the last step of the window of the `l` latest ones, as the
+//! batch forward pass of [`crate::nn::LstmNet`] scores that window, without candle.
 //!
 //! The LSTM restarts from a zero state at every window start (module docs of [`crate::nn`]), so
 //! each decision runs the recurrence over the whole window again: `l` products
@@ -9,23 +9,25 @@
 //! a ring of the `l` latest. Until `l` steps have been seen, the window is front-padded with
 //! the first step, as [`nn_toolkit::Windows`] pads.
 //!
-//! Every product goes through the `gemm` kernel with the shapes and strides candle's `matmul`
-//! gives it ([`nn_toolkit::matmul`]), the cell through [`crate::lstm`]'s own forward, and the
-//! additions in candle's order (`(x W_ihᵀ + h W_hhᵀ) + b`), so a decision is bit for bit the
-//! one [`ekf_residue::WindowedOnline`] computes by re-scoring the window with candle
-//! (`streaming_lstm_matches_the_windowed_candle_pass`) at a fraction of its cost: candle
-//! spends most of a one-row step on creating and dropping tensors.
+//! Every product goes through the `gemm` kernel with the shapes candle's `matmul` gives it,
+//! and the same strides wherever the kernel reads them ([`nn_toolkit::matmul`]); the cell
+//! through [`crate::lstm`]'s own forward; the additions in candle's order
+//! (`(x W_ihᵀ + h W_hhᵀ) + b`). So a decision is bit for bit the one
+//! [`ekf_residue::WindowedOnline`] computes by re-scoring the window with candle
+//! (`streaming_lstm_matches_the_windowed_candle_pass`), at a fraction of its cost: candle
+//! spends most of a one-row step on creating and dropping tensors. Each new step is checked
+//! once, on arrival ([`ekf_residue::checked_step_nis`]).
 
-use ekf_residue::{DetectError, OnlineDecision, OnlineDetector, ResidueError, ResidueSeries, ResidueStep};
-use nn_toolkit::Normaliser;
+use ekf_residue::{DetectError, OnlineDecision, OnlineDetector, ResidueStep, checked_step_nis};
 use nn_toolkit::matmul::{MatMut, MatRef, matmul};
+use nn_toolkit::{NnError, Normaliser};
 
 use crate::lstm::cell_forward;
 
 /// The weights of a fitted [`crate::nn::LstmNet`] as row-major buffers.
 #[derive(Debug, Clone)]
 pub(crate) struct LstmWeights {
-    /// Input width `m`.
+    /// Input width `m` (the normalised features of a step).
     pub(crate) m: usize,
     /// Hidden size `h`.
     pub(crate) h: usize,
@@ -41,20 +43,47 @@ pub(crate) struct LstmWeights {
     pub(crate) head_b: f32,
 }
 
+impl LstmWeights {
+    /// Checks that every buffer has the size `m` and `h` give it, both positive.
+    fn check(&self) -> nn_toolkit::Result<()> {
+        let (m, h) = (self.m, self.h);
+        if m == 0 || h == 0 {
+            return Err(NnError::Data { msg: format!("streaming LSTM: input width {m} and hidden size {h}") });
+        }
+        let sizes = [
+            ("W_ih", self.w_ih.len(), 4 * h * m),
+            ("W_hh", self.w_hh.len(), 4 * h * h),
+            ("b_ih + b_hh", self.bias.len(), 4 * h),
+            ("the head's weight", self.head_w.len(), h),
+        ];
+        for (what, got, expected) in sizes {
+            if got != expected {
+                return Err(NnError::Data {
+                    msg: format!("streaming LSTM: {what} has {got} elements, expected {expected} (m = {m}, h = {h})"),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Streaming LSTM (module docs).
-pub struct LstmOnline<'a> {
+pub struct OnlineLstm<'a> {
     norm: &'a Normaliser,
     w: LstmWeights,
     /// Window length `l`.
     l: usize,
     threshold: f64,
-    /// `x_t W_ihᵀ` of the `l` latest steps, `l × 4h`; row `(start + i) mod l` is the `i`-th
-    /// oldest once `l` steps have been seen, row `i` before.
+    /// `x_t W_ihᵀ` of the `l` latest steps, `l × 4h`; before `l` steps have been seen, row `i`
+    /// holds the `i`-th step, after that row `(start + i) mod l` holds the `i`-th oldest.
     proj: Vec<f32>,
+    /// Row of `proj` holding the oldest step once the ring is full.
     start: usize,
+    /// Steps accepted since the start or the last reset.
     n_seen: usize,
     /// `x W_ihᵀ` of the first step (the front padding).
     first: Vec<f32>,
+    /// Time of the newest accepted step, which the next one must follow.
     t_last: Option<f64>,
     /// Normalised features of the newest step.
     x: Vec<f32>,
@@ -70,12 +99,22 @@ pub struct LstmOnline<'a> {
     logits: Vec<f32>,
 }
 
-impl<'a> LstmOnline<'a> {
-    /// A streaming detector with empty history for windows of `l` steps normalised by `norm`,
-    /// alarming when the logit of the newest step exceeds `threshold`.
-    pub(crate) fn new(w: LstmWeights, norm: &'a Normaliser, l: usize, threshold: f64) -> Self {
+impl<'a> OnlineLstm<'a> {
+    /// A streaming detector with empty history for windows of `l` (at least 1) steps
+    /// normalised by `norm`, alarming when the logit of the newest step exceeds `threshold`.
+    ///
+    /// # Errors
+    /// [`NnError::Data`] if a weight buffer does not have the size the input width and hidden
+    /// size give it, or the input width is not `norm`'s.
+    pub(crate) fn new(w: LstmWeights, norm: &'a Normaliser, l: usize, threshold: f64) -> nn_toolkit::Result<Self> {
+        w.check()?;
+        if norm.dim() != w.m {
+            return Err(NnError::Data {
+                msg: format!("streaming LSTM: input width {} but {} normalised features", w.m, norm.dim()),
+            });
+        }
         let (l, h, g) = (l.max(1), w.h, 4 * w.h);
-        Self {
+        Ok(Self {
             norm,
             l,
             threshold,
@@ -93,23 +132,16 @@ impl<'a> LstmOnline<'a> {
             c: vec![0.0; h],
             logits: vec![0.0; l],
             w,
-        }
+        })
     }
 
-    /// Checks `step` as a window holding it would be checked ([`ResidueSeries::from_flat`]:
-    /// finite values, a symmetric positive definite `S_k`, time after the previous step's) and
-    /// writes its normalised features into `self.x`.
+    /// Checks `step` as a window holding it as its newest step would be checked, and writes
+    /// its normalised features into `self.x`.
     fn features(&mut self, step: &ResidueStep<'_>) -> Result<(), DetectError> {
-        let series =
-            ResidueSeries::from_flat(vec![step.t], self.norm.channels.clone(), step.r_k.to_vec(), step.s_k.to_vec())?;
-        if let Some(t_prev) = self.t_last
-            && step.t <= t_prev
-        {
-            let step_idx = self.n_seen.min(self.l - 1);
-            return Err(ResidueError::Unordered { step_idx, t_prev, t: step.t }.into());
-        }
-        let newest = series.step(0).ok_or_else(|| DetectError::Numerical { what: "empty residue step".into() })?;
-        self.norm.apply(&newest, &mut self.x);
+        let step_idx = self.n_seen.min(self.l - 1);
+        let m = self.norm.channels.len();
+        let nis = checked_step_nis(step_idx, m, self.t_last, step.t, step.r_k, step.s_k)?;
+        self.norm.apply(&ResidueStep { nis, ..*step }, &mut self.x);
         Ok(())
     }
 
@@ -156,7 +188,7 @@ impl<'a> LstmOnline<'a> {
     }
 }
 
-impl OnlineDetector for LstmOnline<'_> {
+impl OnlineDetector for OnlineLstm<'_> {
     fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
         self.features(step)?;
         self.t_last = Some(step.t);
@@ -171,25 +203,34 @@ impl OnlineDetector for LstmOnline<'_> {
 
 #[cfg(test)]
 mod tests {
-    use ekf_residue::{Detector, Fit, LabelledResidues, OnlineDetector, WindowedOnline};
-    use nn_toolkit::{TrainConfig, WindowConfig};
+    use std::sync::OnceLock;
 
-    use crate::nn::{LstmConfig, Stitched};
+    use candle_core::{DType, Device, Tensor};
+    use candle_nn::{VarBuilder, VarMap};
+    use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, OnlineDetector, ResidueError, WindowedOnline};
+    use nn_toolkit::{Features, Normaliser, TrainConfig, WindowConfig, init_vars_seeded};
+
+    use super::OnlineLstm;
+    use crate::nn::{LstmConfig, LstmNet, PerStepNet, Stitched};
     use crate::synthetic::{SyntheticAttack, SyntheticFlight};
 
-    /// A small LSTM fitted on two synthetic flights with a GPS bias (20-step windows, the
-    /// default hidden size, so that the products have the width of the full run's).
-    fn small_lstm() -> crate::Lstm {
+    fn split(seeds: &[u64]) -> LabelledResidues {
         let attack = [SyntheticAttack { start_s: 30.0, end_s: 35.0, bias_m: [20.0, 0.0, 5.0], absorb_tau_s: None }];
-        let split = |seeds: &[u64]| {
-            let flights = seeds.iter().map(|&s| SyntheticFlight::new(600, s).generate(&attack).unwrap()).collect();
-            LabelledResidues::new(flights).unwrap()
-        };
-        let mut cfg = LstmConfig::default();
-        cfg.0.window = WindowConfig { len: 20, stride: 5, ..WindowConfig::default() };
-        cfg.0.score_stride = 10;
-        cfg.0.train = TrainConfig { epochs: 2, progress: false, ..TrainConfig::default() };
-        cfg.fit(&split(&[11, 12]), &split(&[13])).unwrap()
+        let flights = seeds.iter().map(|&s| SyntheticFlight::new(600, s).generate(&attack).unwrap()).collect();
+        LabelledResidues::new(flights).unwrap()
+    }
+
+    /// A small LSTM fitted once on two synthetic flights with a GPS bias (20-step windows, the
+    /// default hidden size, so that the products have the width of the full run's).
+    fn small_lstm() -> &'static crate::Lstm {
+        static LSTM: OnceLock<crate::Lstm> = OnceLock::new();
+        LSTM.get_or_init(|| {
+            let mut cfg = LstmConfig::default();
+            cfg.0.window = WindowConfig { len: 20, stride: 5, ..WindowConfig::default() };
+            cfg.0.score_stride = 10;
+            cfg.0.train = TrainConfig { epochs: 2, progress: false, ..TrainConfig::default() };
+            cfg.fit(&split(&[11, 12]), &split(&[13])).unwrap()
+        })
     }
 
     #[test]
@@ -198,18 +239,66 @@ mod tests {
         let flight = SyntheticFlight::new(600, 14)
             .generate(&[SyntheticAttack { start_s: 20.0, end_s: 28.0, bias_m: [15.0, 5.0, 0.0], absorb_tau_s: None }])
             .unwrap();
-        let mut ours = lstm.online();
-        let mut candle = WindowedOnline::new(Stitched(&lstm), lstm.online_window());
-        // Twice, with a reset between: the padded opening, the ring's wrap, and a fresh start.
-        for pass in 0..2 {
-            for (k, step) in flight.series().steps().enumerate() {
-                let (a, b) = (ours.update(&step).unwrap(), candle.update(&step).unwrap());
+        let (l, threshold) = (lstm.online_window(), lstm.streaming_threshold());
+        let mut ours = lstm.net.online(&lstm.norm, l, threshold).expect("the LSTM streams through OnlineLstm");
+        let mut candle = WindowedOnline::new(Stitched(lstm), lstm.online_window());
+        // The padded opening, the ring's wraps, a reset mid-ring (537 is no multiple of the
+        // window) and a fresh start.
+        let steps: Vec<_> = flight.series().steps().collect();
+        for (pass, run) in [&steps[..537], &steps[..]].into_iter().enumerate() {
+            for (k, step) in run.iter().enumerate() {
+                let (a, b) = (ours.update(step).unwrap(), candle.update(step).unwrap());
                 assert_eq!(a.score.to_bits(), b.score.to_bits(), "pass {pass} step {k}: {} vs {}", a.score, b.score);
                 assert_eq!(a.alarm, b.alarm, "pass {pass} step {k}");
             }
             ours.reset();
             candle.reset();
         }
+    }
+
+    /// Untrained seeded networks of hidden sizes on both sides of the kernel's switch from a
+    /// row-vector product to a full one (`4h` ≤ 256 and > 256): the newest logit of every
+    /// window is the one candle's forward pass gives the same window.
+    #[test]
+    fn streaming_logits_are_candle_logits_for_any_hidden_size() {
+        let data = split(&[21]);
+        let norm = Normaliser::fit(&data, Features::default()).unwrap();
+        let flight = SyntheticFlight::new(120, 22).generate(&[]).unwrap();
+        let (m, l) = (norm.dim(), 12);
+        for h in [8, 64, 65] {
+            let varmap = VarMap::new();
+            let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+            let net = LstmNet::new(m, h, vb).unwrap();
+            init_vars_seeded(&varmap, 7).unwrap();
+            let mut ours = OnlineLstm::new(net.weights().unwrap(), &norm, l, 0.0).unwrap();
+            let mut window: Vec<f32> = Vec::new();
+            for (k, step) in flight.series().steps().enumerate() {
+                let score = ours.update(&step).unwrap().score;
+                let mut x = vec![0.0; m];
+                norm.apply(&step, &mut x);
+                if window.is_empty() {
+                    window = x.repeat(l);
+                } else {
+                    window.drain(..m);
+                    window.extend_from_slice(&x);
+                }
+                let logits = net.logits(&Tensor::from_slice(&window, (1, l, m), &Device::Cpu).unwrap()).unwrap();
+                let expected = logits.flatten_all().unwrap().to_vec1::<f32>().unwrap()[l - 1];
+                assert_eq!(score.to_bits(), f64::from(expected).to_bits(), "h {h} step {k}: {score} vs {expected}");
+            }
+        }
+    }
+
+    #[test]
+    fn weights_of_the_wrong_size_are_refused() {
+        let lstm = small_lstm();
+        let weights = lstm.net.weights().unwrap();
+        let mut short = weights.clone();
+        short.w_hh.pop();
+        let err = OnlineLstm::new(short, &lstm.norm, 20, 0.0).err().unwrap().to_string();
+        assert!(err.contains("W_hh"), "{err}");
+        let wide = super::LstmWeights { m: weights.m + 1, ..weights };
+        assert!(OnlineLstm::new(wide, &lstm.norm, 20, 0.0).is_err());
     }
 
     #[test]
@@ -222,13 +311,14 @@ mod tests {
             ours.update(s).unwrap();
             reference.update(s).unwrap();
         }
-        // A repeated time stamp and a non-finite residue are refused by name.
-        let repeated = ours.update(&steps[29]).unwrap_err().to_string();
-        assert!(repeated.contains("t"), "{repeated}");
+        // A repeated time stamp and a non-finite residue are refused by name, at the newest
+        // index of the full window.
+        let err = ours.update(&steps[29]).unwrap_err();
+        assert!(matches!(err, DetectError::Residue(ResidueError::Unordered { step_idx: 19, .. })), "{err}");
         let r: Vec<f64> = steps[30].r_k.iter().map(|_| f64::NAN).collect();
         let nan = ekf_residue::ResidueStep { r_k: &r, ..steps[30] };
-        let err = ours.update(&nan).unwrap_err().to_string();
-        assert!(err.contains("r_k"), "{err}");
+        let err = ours.update(&nan).unwrap_err();
+        assert!(matches!(err, DetectError::Residue(ResidueError::NonFinite { step_idx: 19, what: "r_k" })), "{err}");
         for s in &steps[30..] {
             assert_eq!(ours.update(s).unwrap().score.to_bits(), reference.update(s).unwrap().score.to_bits());
         }

@@ -40,7 +40,7 @@ use serde::{Deserialize, Serialize};
 use crate::common::{fit_channels, labelled_valid};
 use crate::error::{BaselineError, Result};
 use crate::lstm::LstmLayer;
-use crate::lstm_online::{LstmOnline, LstmWeights};
+use crate::lstm_online::{LstmWeights, OnlineLstm};
 
 /// Budget of `hidden` (CNN channels, LSTM hidden size): weights and activations grow with
 /// its square.
@@ -238,8 +238,20 @@ pub struct LstmNet {
 }
 
 impl LstmNet {
-    fn new(m: usize, h: usize, vb: VarBuilder) -> candle_core::Result<Self> {
+    pub(crate) fn new(m: usize, h: usize, vb: VarBuilder) -> candle_core::Result<Self> {
         Ok(Self { lstm: LstmLayer::new(m, h, vb.pp("lstm"))?, head: candle_nn::linear(h, 1, vb.pp("head"))? })
+    }
+
+    /// The weights as [`OnlineLstm`] reads them.
+    pub(crate) fn weights(&self) -> candle_core::Result<LstmWeights> {
+        let (m, h) = self.lstm.dims();
+        let (w_ih, w_hh, bias) = self.lstm.weights()?;
+        let head_w = self.head.weight().flatten_all()?.to_vec1::<f32>()?;
+        let head_b = match self.head.bias() {
+            Some(b) => b.flatten_all()?.to_vec1::<f32>()?.first().copied().unwrap_or(0.0),
+            None => 0.0,
+        };
+        Ok(LstmWeights { m, h, w_ih, w_hh, bias, head_w, head_b })
     }
 }
 
@@ -249,25 +261,11 @@ impl PerStepNet for LstmNet {
         self.head.forward(&h)?.squeeze(D::Minus1)
     }
 
-    /// [`LstmOnline`]: the recurrence without candle, bit for bit the same logits.
+    /// [`OnlineLstm`]: the recurrence without candle, bit for bit the same logits; `None` if
+    /// the weights cannot be read into it.
     fn online<'a>(&self, norm: &'a Normaliser, l: usize, threshold: f64) -> Option<Box<dyn OnlineDetector + 'a>> {
-        let weights = self.weights().ok()?;
-        Some(Box::new(LstmOnline::new(weights, norm, l, threshold)))
-    }
-}
-
-impl LstmNet {
-    /// The weights as [`LstmOnline`] reads them.
-    fn weights(&self) -> candle_core::Result<LstmWeights> {
-        let (w_ih, w_hh, bias) = self.lstm.weights()?;
-        let h = bias.len() / 4;
-        let head_w = self.head.weight().flatten_all()?.to_vec1::<f32>()?;
-        let head_b = match self.head.bias() {
-            Some(b) => b.flatten_all()?.to_vec1::<f32>()?.first().copied().unwrap_or(0.0),
-            None => 0.0,
-        };
-        let m = if h == 0 { 0 } else { w_ih.len() / (4 * h) };
-        Ok(LstmWeights { m, h, w_ih, w_hh, bias, head_w, head_b })
+        let online = OnlineLstm::new(self.weights().ok()?, norm, l, threshold).ok()?;
+        Some(Box::new(online))
     }
 }
 
@@ -276,8 +274,8 @@ pub struct NeuralDetector<N> {
     name: &'static str,
     config: NeuralConfig,
     channels: Vec<String>,
-    norm: Normaliser,
-    net: N,
+    pub(crate) norm: Normaliser,
+    pub(crate) net: N,
     // Keeps the trained variables alive alongside the network that reads them.
     _varmap: VarMap,
     window: WindowConfig,
@@ -326,8 +324,8 @@ impl<N: PerStepNet> NeuralDetector<N> {
     }
 
     /// The streaming logits: step `k` scored at the last position of the window that ends at
-    /// `k`, front-padded for `k < l − 1` as [`ekf_residue::WindowedOnline`] pads, so exactly
-    /// what [`Detector::online`] gives, computed in batches.
+    /// `k`, front-padded for `k < l − 1` as [`ekf_residue::WindowedOnline`] pads, so what
+    /// [`Detector::online`] gives, to rounding: here the windows run in batches.
     fn score_streaming_inner(&self, series: &ResidueSeries) -> Result<Vec<f64>> {
         let (l, n) = (self.window.len, series.len());
         let mut windows = Windows::empty(l, self.norm.dim());
@@ -491,7 +489,7 @@ impl<N: PerStepNet> Detector for NeuralDetector<N> {
     /// Streaming re-scores the last `l` steps as one window and reports its last step's
     /// stitched logit, never smoothed (the batch score averages the windows covering a step,
     /// and may smooth them over later steps, so the two agree only approximately). The LSTM
-    /// does so without candle ([`LstmOnline`], the same logits bit for bit); the CNN through
+    /// does so without candle ([`OnlineLstm`], the same logits bit for bit); the CNN through
     /// [`WindowedOnline`].
     fn online(&self) -> Box<dyn OnlineDetector + '_> {
         let (l, threshold) = (self.window.len, self.stream_threshold);

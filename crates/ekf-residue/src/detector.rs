@@ -6,8 +6,10 @@
 //! score. A detector's decision threshold is chosen on the validation split inside `fit`, never
 //! on test data (docs/decisions/001-validation-split-labels.md).
 
+use std::collections::VecDeque;
+
 use crate::error::DetectError;
-use crate::series::{LabelledResidues, ResidueSeries, ResidueStep};
+use crate::series::{LabelledResidues, ResidueSeries, ResidueStep, checked_step_nis};
 
 /// Anything that turns residues into per-step anomaly scores (higher = more anomalous) and
 /// alarms.
@@ -273,44 +275,46 @@ impl<T: Detector + ?Sized> Detector for &T {
 pub struct WindowedOnline<D: Detector> {
     detector: D,
     window: usize,
-    t: std::collections::VecDeque<f64>,
-    r: std::collections::VecDeque<Vec<f64>>,
-    s: std::collections::VecDeque<Vec<f64>>,
+    t: VecDeque<f64>,
+    r: VecDeque<Vec<f64>>,
+    s: VecDeque<Vec<f64>>,
+    /// NIS of every step held, computed when the step was checked on arrival.
+    nis: VecDeque<f64>,
 }
 
 impl<D: Detector> WindowedOnline<D> {
     /// Wraps `detector`, keeping at most `window` (at least 1) past steps.
     pub fn new(detector: D, window: usize) -> Self {
-        Self { detector, window: window.max(1), t: Default::default(), r: Default::default(), s: Default::default() }
+        let window = window.max(1);
+        let (t, r, s, nis) = Default::default();
+        Self { detector, window, t, r, s, nis }
     }
 }
 
 impl<D: Detector> OnlineDetector for WindowedOnline<D> {
+    /// Checks the new step alone ([`checked_step_nis`], at its index in the window), so that a
+    /// bad step is refused and leaves the window as it was, then re-scores the window.
     fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
+        let step_idx = self.t.len().min(self.window - 1);
+        let m = self.detector.channels().len();
+        let nis = checked_step_nis(step_idx, m, self.t.back().copied(), step.t, step.r_k, step.s_k)?;
         if self.t.len() == self.window {
             self.t.pop_front();
             self.r.pop_front();
             self.s.pop_front();
+            self.nis.pop_front();
         }
         self.t.push_back(step.t);
         self.r.push_back(step.r_k.to_vec());
         self.s.push_back(step.s_k.to_vec());
-        let series = ResidueSeries::from_flat(
+        self.nis.push_back(nis);
+        let series = ResidueSeries::from_checked(
             self.t.iter().copied().collect(),
             self.detector.channels().to_vec(),
             self.r.iter().flatten().copied().collect(),
             self.s.iter().flatten().copied().collect(),
+            self.nis.iter().copied().collect(),
         );
-        let series = match series {
-            Ok(s) => s,
-            Err(e) => {
-                // Drop the offending step so that one bad sample does not poison the window.
-                self.t.pop_back();
-                self.r.pop_back();
-                self.s.pop_back();
-                return Err(e.into());
-            }
-        };
         let scores = self.detector.score(&series)?;
         let score =
             scores.last().copied().ok_or_else(|| DetectError::Numerical { what: "empty score window".into() })?;
@@ -321,12 +325,14 @@ impl<D: Detector> OnlineDetector for WindowedOnline<D> {
         self.t.clear();
         self.r.clear();
         self.s.clear();
+        self.nis.clear();
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::ResidueError;
 
     /// Alarms when the step's single residue is above 1; the score is the residue.
     struct Above1;
@@ -393,5 +399,54 @@ mod tests {
         assert_eq!(alarms(&mut two, &[2.0]), [false]);
         two.reset();
         assert_eq!(alarms(&mut two, &[2.0, 2.0]), [false, true]);
+    }
+
+    /// Scores each step of a window by the sum of the NIS of the window's steps up to it.
+    struct CumulativeNis(Vec<String>);
+
+    impl Detector for CumulativeNis {
+        fn name(&self) -> &str {
+            "cumulative NIS"
+        }
+
+        fn channels(&self) -> &[String] {
+            &self.0
+        }
+
+        fn score(&self, series: &ResidueSeries) -> Result<Vec<f64>, DetectError> {
+            Ok(series
+                .nis()
+                .iter()
+                .scan(0.0, |sum, nis| {
+                    *sum += nis;
+                    Some(*sum)
+                })
+                .collect())
+        }
+
+        fn threshold(&self) -> f64 {
+            10.0
+        }
+    }
+
+    #[test]
+    fn a_windowed_detector_sees_the_newest_steps_and_refuses_a_bad_one_whole() {
+        let mut det = WindowedOnline::new(CumulativeNis(vec!["x".into()]), 3);
+        // NIS of each step is r², S = 1: the window's sum of the last three.
+        assert_eq!(scores(&mut det, &[1.0, 2.0, 1.0, 3.0]), [1.0, 5.0, 6.0, 14.0]);
+        let s = [1.0];
+        let step = |t: f64, r: &'static [f64]| ResidueStep { t, r_k: r, s_k: &s, nis: 0.0 };
+        // The window is full (steps at 1, 2, 3 s): a repeated time, a NaN residue and an
+        // indefinite S_k are refused at the newest index, and the window is kept whole.
+        let err = det.update(&step(3.0, &[1.0])).unwrap_err();
+        assert!(matches!(err, DetectError::Residue(ResidueError::Unordered { step_idx: 2, .. })), "{err}");
+        let err = det.update(&step(4.0, &[f64::NAN])).unwrap_err();
+        assert!(matches!(err, DetectError::Residue(ResidueError::NonFinite { step_idx: 2, what: "r_k" })), "{err}");
+        let zero = [0.0];
+        let err = det.update(&ResidueStep { t: 4.0, r_k: &[1.0], s_k: &zero, nis: 0.0 }).unwrap_err();
+        assert!(matches!(err, DetectError::Residue(ResidueError::NotPositiveDefinite { step_idx: 2 })), "{err}");
+        assert_eq!(det.update(&step(4.0, &[0.0])).unwrap().score, 1.0 + 9.0);
+        det.reset();
+        assert_eq!(det.update(&step(0.0, &[2.0])).unwrap().score, 4.0);
     }
 }

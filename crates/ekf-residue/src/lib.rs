@@ -76,4 +76,4 @@ pub use residues::{
     Estimator, FilterConfig, GpsFusion, InitConfig, MeasurementNoise, Measurements, ModelKind, ResidueOutput,
     StateEstimate, UpdateOutcome, generate_residues,
 };
-pub use series::{LabelledResidues, LabelledSeries, ResidueSeries, ResidueStep};
+pub use series::{LabelledResidues, LabelledSeries, ResidueSeries, ResidueStep, checked_step_nis};

@@ -127,21 +127,19 @@ impl ResidueSeries {
         }
         let mut nis = Vec::with_capacity(n);
         for step_idx in 0..n {
-            let t_k = t[step_idx];
-            if !t_k.is_finite() {
-                return Err(ResidueError::NonFinite { step_idx, what: "t" });
-            }
-            if step_idx > 0 && t_k <= t[step_idx - 1] {
-                return Err(ResidueError::Unordered { step_idx, t_prev: t[step_idx - 1], t: t_k });
-            }
-            let r_k = &r[step_idx * m..(step_idx + 1) * m];
-            if r_k.iter().any(|v| !v.is_finite()) {
-                return Err(ResidueError::NonFinite { step_idx, what: "r_k" });
-            }
-            let s_k = DMatrix::from_row_slice(m, m, &s[step_idx * m * m..(step_idx + 1) * m * m]);
-            nis.push(checked_nis(step_idx, r_k, s_k)?);
+            let t_prev = step_idx.checked_sub(1).map(|i| t[i]);
+            let (r_k, s_k) = (&r[step_idx * m..(step_idx + 1) * m], &s[step_idx * m * m..(step_idx + 1) * m * m]);
+            nis.push(checked_step_nis(step_idx, m, t_prev, t[step_idx], r_k, s_k)?);
         }
         Ok(Self { t, channels, r, s, nis })
+    }
+
+    /// A series of steps each already checked by [`checked_step_nis`] in this order, with
+    /// their NIS: what a streaming window holds. Lengths must agree (`debug_assert`ed).
+    pub(crate) fn from_checked(t: Vec<f64>, channels: Vec<String>, r: Vec<f64>, s: Vec<f64>, nis: Vec<f64>) -> Self {
+        let (n, m) = (t.len(), channels.len());
+        debug_assert!(r.len() == n * m && s.len() == n * m * m && nis.len() == n);
+        Self { t, channels, r, s, nis }
     }
 
     /// Number of steps `n`.
@@ -261,6 +259,42 @@ impl ResidueSeries {
             nis: self.nis[range].to_vec(),
         })
     }
+}
+
+/// Checks one step as [`ResidueSeries::from_flat`] checks its step `step_idx` of `m` channels
+/// when the step before is at `t_prev`, and returns its NIS `r_kᵀ S_k⁻¹ r_k`. In this order:
+/// a finite time `t` after `t_prev`, `m` finite residues `r_k`, and a finite, symmetric,
+/// positive definite `m × m` covariance `s_k` (row-major). A streaming detector checks each
+/// new step once with it, and so never checks its window again.
+///
+/// # Errors
+/// The first failed check, as a [`ResidueError`] naming `step_idx` and the field.
+pub fn checked_step_nis(
+    step_idx: usize,
+    m: usize,
+    t_prev: Option<f64>,
+    t: f64,
+    r_k: &[f64],
+    s_k: &[f64],
+) -> Result<f64, ResidueError> {
+    if !t.is_finite() {
+        return Err(ResidueError::NonFinite { step_idx, what: "t" });
+    }
+    if let Some(t_prev) = t_prev
+        && t <= t_prev
+    {
+        return Err(ResidueError::Unordered { step_idx, t_prev, t });
+    }
+    if r_k.len() != m {
+        return Err(ResidueError::StepDim { step_idx, what: "r_k", expected: m, got: r_k.len() });
+    }
+    if s_k.len() != m * m {
+        return Err(ResidueError::StepDim { step_idx, what: "S_k (flat)", expected: m * m, got: s_k.len() });
+    }
+    if r_k.iter().any(|v| !v.is_finite()) {
+        return Err(ResidueError::NonFinite { step_idx, what: "r_k" });
+    }
+    checked_nis(step_idx, r_k, DMatrix::from_row_slice(m, m, s_k))
 }
 
 /// Checks that `S_k` is finite, symmetric and positive definite, and returns `r_kᵀ S_k⁻¹ r_k`.

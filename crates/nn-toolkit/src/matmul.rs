@@ -1,8 +1,9 @@
 //! Bounds-checked matrix products on strided `f32` views of slices, for the streaming engines
 //! (`quadformer_model::streaming`, `baselines::lstm_online`): the `gemm` crate's kernel (the one
 //! candle's CPU `matmul` calls) writing into a caller-owned buffer, so that a streaming decision
-//! allocates and zero-fills nothing. Given the shapes and strides candle gives it, it computes
-//! candle's product bit for bit.
+//! allocates and zero-fills nothing. Called with the shapes candle's `matmul` gives the
+//! kernel, and the same strides wherever the kernel reads them, it computes candle's product
+//! bit for bit (`products_are_candles_bit_for_bit`).
 //!
 //! `gemm::gemm` takes raw pointers and strides. [`matmul`] accepts only views whose every
 //! element lies inside its slice ([`MatRef::new`], [`MatMut::new`]) and whose shapes agree; the
@@ -216,5 +217,29 @@ mod tests {
             false,
         );
         assert!(r.is_err());
+    }
+
+    /// `a · bᵀ` through [`matmul`] and through candle, for the products of the streaming
+    /// engines: a row by a transposed weight, a narrowed row (row stride `2h`, as `[h | c]`
+    /// holds `h`) by a transposed weight, and a block of rows by a column; with `4h` on both
+    /// sides of 256, where the kernel's row-vector path ends.
+    #[test]
+    fn products_are_candles_bit_for_bit() {
+        use candle_core::{Device, IndexOp, Tensor};
+        let dev = &Device::Cpu;
+        for (rows, k, p, rs) in [(1, 7, 32, 7), (1, 64, 256, 128), (1, 65, 260, 130), (1, 7, 260, 7), (30, 64, 1, 64)] {
+            let a = data(rows.max(2) * rs, 3);
+            let w = data(p * k, 4);
+            // candle: `a` narrowed to its first k columns of rows strided rs, times Wᵀ.
+            let at = Tensor::from_slice(&a[..rows * rs], (rows, rs), dev).unwrap().i((.., ..k)).unwrap();
+            let wt = Tensor::from_slice(&w, (p, k), dev).unwrap().t().unwrap();
+            let want = at.matmul(&wt).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let mut c = vec![0f32; rows * p];
+            let a_view = MatRef::new(&a, rows, k, rs, 1).unwrap();
+            matmul(MatMut::rows(&mut c, rows, p).unwrap(), a_view, MatRef::rows(&w, p, k).unwrap().t(), 1.0, false)
+                .unwrap();
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&c), bits(&want), "{rows} × {k} (row stride {rs}) · {k} × {p}");
+        }
     }
 }
