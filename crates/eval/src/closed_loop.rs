@@ -368,7 +368,11 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
     for m in methods {
         if let LoopMethod::Fitted(method) = *m {
             let det = fit(method, &cfgs, &train, &valid)?.detector;
-            let candidates = LoopCandidates { confirm: &opts.config.loop_confirm, smooth: &opts.config.loop_smooth };
+            let candidates = LoopCandidates {
+                confirm: &opts.config.loop_confirm,
+                smooth: &opts.config.loop_smooth,
+                f1_tolerance: opts.config.loop_f1_tolerance,
+            };
             let setting = loop_setting(det.as_ref(), &valid_flights, &filter, candidates)
                 .map_err(|e| ReproduceError::Config(format!("closed loop {}: {e}", unit.slug())))?;
             fitted.push((method, det, setting));
@@ -453,13 +457,42 @@ pub struct LoopSetting {
     pub smooth: usize,
 }
 
-/// The candidates [`loop_setting`] flies besides the thresholds.
+/// The candidates [`loop_setting`] flies besides the thresholds, and how it chooses.
 #[derive(Debug, Clone, Copy)]
 pub struct LoopCandidates<'a> {
     /// Of [`LoopSetting::confirm`] (`MatrixConfig::loop_confirm`).
     pub confirm: &'a [usize],
     /// Of [`LoopSetting::smooth`] (`MatrixConfig::loop_smooth`).
     pub smooth: &'a [usize],
+    /// How far below the best validation F1 a candidate may fall and still be chosen for
+    /// raising fewer alarm events per clean minute (`MatrixConfig::loop_f1_tolerance`);
+    /// `None` chooses the best F1.
+    pub f1_tolerance: Option<f64>,
+}
+
+/// One candidate setting flown on the validation flights.
+#[derive(Debug, Clone, Copy)]
+struct Flown {
+    setting: LoopSetting,
+    /// Index of its (confirm, smooth) pair in the order they are flown.
+    pair: usize,
+    f1: f64,
+    alarm_events_per_clean_min: f64,
+}
+
+/// Step 4 of [`loop_setting`]: the chosen candidate.
+fn choose(flown: &[Flown], f1_tolerance: Option<f64>) -> Option<LoopSetting> {
+    // Higher F1, then the earlier pair, then the higher threshold.
+    let by_f1 = |a: &Flown, b: &Flown| {
+        a.f1.total_cmp(&b.f1).then(b.pair.cmp(&a.pair)).then(a.setting.threshold.total_cmp(&b.setting.threshold))
+    };
+    let best = flown.iter().max_by(|a, b| by_f1(a, b))?;
+    let Some(tol) = f1_tolerance else { return Some(best.setting) };
+    flown
+        .iter()
+        .filter(|c| c.f1 >= best.f1 - tol)
+        .max_by(|a, b| b.alarm_events_per_clean_min.total_cmp(&a.alarm_events_per_clean_min).then(by_f1(a, b)))
+        .map(|c| c.setting)
 }
 
 /// The loop setting of a fitted detector (module doc), from the trained families' validation
@@ -470,13 +503,15 @@ pub struct LoopCandidates<'a> {
 ///    also undoes the spoofed fixes fused before it in nine attacks out of ten.
 /// 2. Candidates: that threshold, the F1-maximising threshold of the scores it gave there and
 ///    [`LOOP_THRESHOLD_QUANTILES`] of its scores on clean fixes.
-/// 3. Fly them again at each candidate with that look-back; the threshold whose own alarms
-///    have the highest per-fix F1 wins (ties: the higher threshold).
+/// 3. Fly them again at each candidate with that look-back.
 /// 4. Steps 1–3 are taken for each pair of candidates of the score's trailing mean
 ///    ([`LoopSetting::smooth`]; `MatrixConfig::loop_smooth`) and of the confirmation (an
 ///    alarm stands after that many consecutive raw alarms, [`LoopSetting::confirm`];
-///    `MatrixConfig::loop_confirm`); the pair with the highest F1 wins (ties: the earlier
-///    pair, smoothing varying fastest).
+///    `MatrixConfig::loop_confirm`). Of every candidate flown, the one whose own alarms have
+///    the highest per-fix F1 wins (ties: the earlier pair, smoothing varying fastest, then
+///    the higher threshold). With an F1 tolerance (`MatrixConfig::loop_f1_tolerance`), the
+///    candidate with the fewest alarm events per clean minute among those within it of the
+///    best F1 wins instead (ties as before).
 ///
 /// Every flight, from step 1 on, bounds an exclusion by [`exclusion_bound_s`].
 ///
@@ -485,37 +520,39 @@ pub struct LoopCandidates<'a> {
 ///
 /// # Errors
 /// A flight's error, no attacked fix among the validation flights, a `confirm` candidate
-/// of 0, or no candidate.
+/// of 0, an F1 tolerance that is not a finite non-negative number, or no candidate.
 pub fn loop_setting(
     det: &dyn Detector,
     valid: &[PlannedFlight],
     filter: &FilterConfig,
     candidates: LoopCandidates<'_>,
 ) -> std::result::Result<LoopSetting, String> {
-    let mut best: Option<(LoopSetting, f64)> = None;
+    if let Some(tol) = candidates.f1_tolerance.filter(|t| !(t.is_finite() && *t >= 0.0)) {
+        return Err(format!("loop_f1_tolerance: must be finite and at least 0, got {tol}"));
+    }
+    let mut flown = Vec::new();
     for &confirm in candidates.confirm {
         if confirm == 0 {
             return Err("loop_confirm: a confirmation needs at least 1 raw alarm, got 0".into());
         }
         for &smooth in candidates.smooth {
-            let (setting, f1) = loop_setting_at(det, valid, filter, confirm, smooth)?;
-            if best.is_none_or(|(_, b)| f1 > b) {
-                best = Some((setting, f1));
-            }
+            flown.extend(loop_candidates_at(det, valid, filter, confirm, smooth, flown.len())?);
         }
     }
-    best.map(|(s, _)| s).ok_or_else(|| "loop_confirm, loop_smooth: no candidate".to_owned())
+    choose(&flown, candidates.f1_tolerance).ok_or_else(|| "loop_confirm, loop_smooth: no candidate".to_owned())
 }
 
 /// Steps 1–3 of [`loop_setting`] with alarms confirmed over `confirm` steps and scores
-/// averaged over `smooth` earlier ones: the setting and its validation F1.
-fn loop_setting_at(
+/// averaged over `smooth` earlier ones: every threshold candidate as flown, tagged with the
+/// index of the pair (the number of candidates flown before it keeps the pairs' order).
+fn loop_candidates_at(
     det: &dyn Detector,
     valid: &[PlannedFlight],
     filter: &FilterConfig,
     confirm: usize,
     smooth: usize,
-) -> std::result::Result<(LoopSetting, f64), String> {
+    pair: usize,
+) -> std::result::Result<Vec<Flown>, String> {
     let reset_after_s = exclusion_bound_s(valid);
     let fitted = LoopSetting { threshold: det.streaming_threshold(), lookback_s: 0.0, reset_after_s, confirm, smooth };
     let traces = fly_family(valid, filter, Pilot::Fitted(det, fitted), 0.0)?;
@@ -534,20 +571,16 @@ fn loop_setting_at(
     candidates.retain(|t| t.is_finite());
     candidates.sort_by(f64::total_cmp);
     candidates.dedup();
-    let flown: Vec<(f64, f64)> = candidates
+    candidates
         .par_iter()
         .map(|&threshold| {
             let setting = LoopSetting { threshold, lookback_s, reset_after_s, confirm, smooth };
             let traces = fly_family(valid, filter, Pilot::Fitted(det, setting), 0.0)?;
             let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
-            Ok((threshold, loop_metrics(&steps, false).f1))
+            let m = loop_metrics(&steps, false);
+            Ok(Flown { setting, pair, f1: m.f1, alarm_events_per_clean_min: m.alarm_events_per_clean_min })
         })
-        .collect::<std::result::Result<_, String>>()?;
-    flown
-        .into_iter()
-        .max_by(|a, b| a.1.total_cmp(&b.1).then(a.0.total_cmp(&b.0)))
-        .map(|(threshold, f1)| (LoopSetting { threshold, lookback_s, reset_after_s, confirm, smooth }, f1))
-        .ok_or_else(|| format!("{} loop threshold: no candidate", det.name()))
+        .collect()
 }
 
 /// What decides the exclusions of a flight.
@@ -830,6 +863,9 @@ fn unit_key(
     h.update(format!("quadformer-rs closed loop v{UNIT_VERSION} {}\n", env!("CARGO_PKG_VERSION")).as_bytes());
     let (confirm, smooth) = (&opts.config.loop_confirm, &opts.config.loop_smooth);
     h.update(format!("{unit:?} {methods:?} {LATENCIES_S:?} {confirm:?} {smooth:?}\n").as_bytes());
+    if let Some(tol) = opts.config.loop_f1_tolerance {
+        h.update(format!("f1 tolerance {tol:?}\n").as_bytes());
+    }
     for (f, c) in cfgs {
         let key = c.get().cache_key().map_err(dataset_err(unit, *f))?;
         h.update(key.as_bytes());
@@ -1169,6 +1205,41 @@ mod tests {
         let r = row(UNIT, Family::Ramp, "X", 0.0, None, &[early.as_slice(), f.as_slice()]);
         assert_eq!(r.alarmed_before_3m, Some(0.5), "one of the two drifts caught before 3 m");
         assert_eq!(row(UNIT, Family::Bias, "X", 0.0, None, &[f.as_slice()]).alarmed_before_3m, None);
+    }
+
+    #[test]
+    fn the_setting_is_the_best_f1_or_the_quietest_within_the_tolerance() {
+        let c = |pair, threshold, f1, alarm_events_per_clean_min| Flown {
+            setting: LoopSetting { threshold, lookback_s: 0.0, reset_after_s: None, confirm: 1 + pair, smooth: 0 },
+            pair,
+            f1,
+            alarm_events_per_clean_min,
+        };
+        let flown = [c(0, 0.1, 0.90, 3.0), c(0, 0.2, 0.89, 1.0), c(0, 0.3, 0.80, 0.0), c(1, 0.1, 0.90, 2.0)];
+        let chosen = |tol| choose(&flown, tol).map(|s| (s.confirm, s.threshold));
+        assert_eq!(chosen(None), Some((1, 0.1)), "best F1; ties: the earlier pair");
+        assert_eq!(chosen(Some(0.0)), Some((2, 0.1)), "equal F1: the quieter");
+        assert_eq!(chosen(Some(0.02)), Some((1, 0.2)), "within 0.02 of the best: the quietest");
+        assert_eq!(chosen(Some(0.5)), Some((1, 0.3)));
+        assert_eq!(choose(&[], None).map(|s| s.threshold), None);
+        // Equal F1 within one pair: the higher threshold.
+        assert_eq!(choose(&[c(0, 0.1, 0.5, 1.0), c(0, 0.2, 0.5, 1.0)], Some(0.0)).map(|s| s.threshold), Some(0.2));
+    }
+
+    #[test]
+    fn a_bad_f1_tolerance_is_refused_before_anything_is_flown() {
+        let data = |seed| {
+            let flight = baselines::synthetic::SyntheticFlight::new(2_000, seed).generate(&[]).unwrap();
+            LabelledResidues::new(vec![flight]).unwrap()
+        };
+        let textbook = baselines::Chi2Config { tuning: baselines::Tuning::Textbook, ..Default::default() };
+        let det = ekf_residue::Fit::fit(&textbook, &data(1), &data(2)).unwrap();
+        let filter = FilterConfig::new(ekf_residue::residues::ModelKind::ModelI);
+        for tol in [-0.1, f64::NAN, f64::INFINITY] {
+            let candidates = LoopCandidates { confirm: &[1], smooth: &[0], f1_tolerance: Some(tol) };
+            let err = loop_setting(&det, &[], &filter, candidates).unwrap_err();
+            assert!(err.contains("loop_f1_tolerance"), "{err}");
+        }
     }
 
     #[test]

@@ -108,6 +108,12 @@ pub struct MatrixConfig {
     /// fitted detector flies its validation flights at each with each `loop_confirm` and keeps
     /// the best. 0 is the detector's streaming score. Default `[0, 2]` (decision 091).
     pub loop_smooth: Vec<usize>,
+    /// How far below the best validation F1 the closed loop's setting may fall to raise fewer
+    /// alarm events per clean minute of the validation flights: of the candidates within it,
+    /// the quietest is chosen ([`crate::closed_loop::loop_setting`]). Default none: the best
+    /// F1 (docs/decisions/091-closed-loop.md).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub loop_f1_tolerance: Option<f64>,
     /// Whether the closed loop's QUADFormer attends causally (`NetConfig::causal`): every
     /// position of its training windows is a decision on the past, as every decision in the
     /// loop is. Tables I and II keep `methods.quadformer` as it is. Default `true`, chosen on
@@ -126,6 +132,7 @@ impl Default for MatrixConfig {
             ablation_fractions: vec![0.01, 0.1, 1.0],
             loop_confirm: vec![1, 2],
             loop_smooth: vec![0, 2],
+            loop_f1_tolerance: None,
             loop_causal: true,
         }
     }
