@@ -437,7 +437,8 @@ mod tests {
         let s = [1.0];
         let step = |t: f64, r: &'static [f64]| ResidueStep { t, r_k: r, s_k: &s, nis: 0.0 };
         // The window is full (steps at 1, 2, 3 s): a repeated time, a NaN residue and an
-        // indefinite S_k are refused at the newest index, and the window is kept whole.
+        // indefinite S_k are refused at the newest index, and the next good step is scored on
+        // the three newest good steps.
         let err = det.update(&step(3.0, &[1.0])).unwrap_err();
         assert!(matches!(err, DetectError::Residue(ResidueError::Unordered { step_idx: 2, .. })), "{err}");
         let err = det.update(&step(4.0, &[f64::NAN])).unwrap_err();

@@ -263,8 +263,8 @@ impl ResidueSeries {
 
 /// Checks one step as [`ResidueSeries::from_flat`] checks its step `step_idx` of `m` channels
 /// when the step before is at `t_prev`, and returns its NIS `r_kᵀ S_k⁻¹ r_k`. In this order:
-/// a finite time `t` after `t_prev`, `m` finite residues `r_k`, and a finite, symmetric,
-/// positive definite `m × m` covariance `s_k` (row-major). A streaming detector checks each
+/// at least one channel, a finite time `t` after `t_prev`, `m` finite residues `r_k`, and a
+/// finite, symmetric, positive definite `m × m` covariance `s_k` (row-major). A streaming detector checks each
 /// new step once with it, and so never checks its window again.
 ///
 /// # Errors
@@ -277,6 +277,9 @@ pub fn checked_step_nis(
     r_k: &[f64],
     s_k: &[f64],
 ) -> Result<f64, ResidueError> {
+    if m == 0 {
+        return Err(ResidueError::Dim { what: "channels", expected: 1, got: 0 });
+    }
     if !t.is_finite() {
         return Err(ResidueError::NonFinite { step_idx, what: "t" });
     }

@@ -14,13 +14,15 @@
 //!   exactly on attacked fixes ([`ResidueProtocol::Protected`]), so residues and labels agree.
 //! - Thresholds: each fitted detector first picks its streaming threshold on those validation
 //!   residues (inside `fit`); the validation flights are then flown in the loop with the
-//!   detector at that threshold, and the threshold that maximises F1 on the scores of that
-//!   flight is the one the test flights use ([`loop_setting`]). In the loop the detector's
-//!   own exclusions change the residues (after a false exclusion the estimate has drifted);
-//!   the second pick sees that, the first cannot. The same flights choose how many
-//!   consecutive raw alarms an alarm needs among the configured candidates
-//!   ([`LoopSetting::confirm`]; by default 1, every raw alarm), and over how many of its
-//!   newest scores the detector's score is averaged ([`LoopSetting::smooth`]).
+//!   detector at that threshold and again at each threshold candidate drawn from the scores
+//!   of that flight, and the candidate whose own alarms have the best F1 is the one the test
+//!   flights use ([`loop_setting`]). In the loop the detector's own exclusions change the
+//!   residues (after a false exclusion the estimate has drifted); the second pick sees that,
+//!   the first cannot. The same flights choose how many consecutive raw alarms an alarm needs
+//!   ([`LoopSetting::confirm`]; candidates 1 and 2 by default), and over how many of its
+//!   newest scores the detector's score is averaged ([`LoopSetting::smooth`]; 0 and 2).
+//!   `MatrixConfig::loop_f1_tolerance` may instead choose the quietest candidate within a
+//!   tolerance of the best F1.
 //! - Exclusions by a fitted detector last at most the longest validation attack plus 1 s
 //!   ([`exclusion_bound_s`]); then GPS is re-admitted with a position reset, as EKF2 does.
 //! - Detectors: the fitted QUADFormer, LSTM, CNN, CUSUM, SPRT and χ² test; the PX4 EKF2 gate
@@ -474,7 +476,7 @@ pub struct LoopCandidates<'a> {
 #[derive(Debug, Clone, Copy)]
 struct Flown {
     setting: LoopSetting,
-    /// Index of its (confirm, smooth) pair in the order they are flown.
+    /// Index of its (confirm, smooth) pair in the order the pairs are flown.
     pair: usize,
     f1: f64,
     alarm_events_per_clean_min: f64,
@@ -531,20 +533,19 @@ pub fn loop_setting(
         return Err(format!("loop_f1_tolerance: must be finite and at least 0, got {tol}"));
     }
     let mut flown = Vec::new();
-    for &confirm in candidates.confirm {
+    let pairs = candidates.confirm.iter().flat_map(|&c| candidates.smooth.iter().map(move |&w| (c, w)));
+    for (pair, (confirm, smooth)) in pairs.enumerate() {
         if confirm == 0 {
             return Err("loop_confirm: a confirmation needs at least 1 raw alarm, got 0".into());
         }
-        for &smooth in candidates.smooth {
-            flown.extend(loop_candidates_at(det, valid, filter, confirm, smooth, flown.len())?);
-        }
+        flown.extend(loop_candidates_at(det, valid, filter, confirm, smooth, pair)?);
     }
     choose(&flown, candidates.f1_tolerance).ok_or_else(|| "loop_confirm, loop_smooth: no candidate".to_owned())
 }
 
 /// Steps 1–3 of [`loop_setting`] with alarms confirmed over `confirm` steps and scores
-/// averaged over `smooth` earlier ones: every threshold candidate as flown, tagged with the
-/// index of the pair (the number of candidates flown before it keeps the pairs' order).
+/// averaged over `smooth` earlier ones: every threshold candidate as flown, tagged with
+/// `pair`, the index of the pair.
 fn loop_candidates_at(
     det: &dyn Detector,
     valid: &[PlannedFlight],
@@ -571,6 +572,9 @@ fn loop_candidates_at(
     candidates.retain(|t| t.is_finite());
     candidates.sort_by(f64::total_cmp);
     candidates.dedup();
+    if candidates.is_empty() {
+        return Err(format!("{} loop threshold: no candidate", det.name()));
+    }
     candidates
         .par_iter()
         .map(|&threshold| {
@@ -864,7 +868,8 @@ fn unit_key(
     let (confirm, smooth) = (&opts.config.loop_confirm, &opts.config.loop_smooth);
     h.update(format!("{unit:?} {methods:?} {LATENCIES_S:?} {confirm:?} {smooth:?}\n").as_bytes());
     if let Some(tol) = opts.config.loop_f1_tolerance {
-        h.update(format!("f1 tolerance {tol:?}\n").as_bytes());
+        // + 0.0 makes a tolerance of -0.0 the key of 0.0.
+        h.update(format!("f1 tolerance {:?}\n", tol + 0.0).as_bytes());
     }
     for (f, c) in cfgs {
         let key = c.get().cache_key().map_err(dataset_err(unit, *f))?;
@@ -1218,6 +1223,8 @@ mod tests {
         let flown = [c(0, 0.1, 0.90, 3.0), c(0, 0.2, 0.89, 1.0), c(0, 0.3, 0.80, 0.0), c(1, 0.1, 0.90, 2.0)];
         let chosen = |tol| choose(&flown, tol).map(|s| (s.confirm, s.threshold));
         assert_eq!(chosen(None), Some((1, 0.1)), "best F1; ties: the earlier pair");
+        let tied = [c(0, 0.1, 0.90, 3.0), c(1, 0.5, 0.90, 3.0)];
+        assert_eq!(choose(&tied, None).map(|s| s.confirm), Some(1), "the earlier pair before the higher threshold");
         assert_eq!(chosen(Some(0.0)), Some((2, 0.1)), "equal F1: the quieter");
         assert_eq!(chosen(Some(0.02)), Some((1, 0.2)), "within 0.02 of the best: the quietest");
         assert_eq!(chosen(Some(0.5)), Some((1, 0.3)));

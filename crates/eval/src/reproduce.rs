@@ -100,13 +100,14 @@ pub struct MatrixConfig {
     pub ablation_fractions: Vec<f64>,
     /// Candidates of the closed loop's alarm confirmation, consecutive raw alarms before an
     /// alarm stands; each fitted detector flies its validation flights at each and keeps the
-    /// best ([`crate::closed_loop::loop_setting`]). Default `[1, 2]`: every raw alarm, or two
-    /// in a row (docs/decisions/091-closed-loop.md).
+    /// best, or the quietest near it with `loop_f1_tolerance`
+    /// ([`crate::closed_loop::loop_setting`]). Default `[1, 2]`: every raw alarm, or two in a
+    /// row (docs/decisions/091-closed-loop.md).
     pub loop_confirm: Vec<usize>,
     /// Candidates of the closed loop's score smoothing: the number of earlier scores a fitted
     /// detector's loop score averages with the newest one (`ekf_residue::TrailingMean`); each
     /// fitted detector flies its validation flights at each with each `loop_confirm` and keeps
-    /// the best. 0 is the detector's streaming score. Default `[0, 2]` (decision 091).
+    /// the best (as for `loop_confirm`). 0 is the detector's streaming score. Default `[0, 2]` (decision 091).
     pub loop_smooth: Vec<usize>,
     /// How far below the best validation F1 the closed loop's setting may fall to raise fewer
     /// alarm events per clean minute of the validation flights: of the candidates within it,
@@ -162,7 +163,28 @@ impl MatrixConfig {
         let user: toml::Table = text.parse().map_err(|e: toml::de::Error| err(e.to_string()))?;
         let mut merged = toml::Table::try_from(base).map_err(|e| err(e.to_string()))?;
         crate::io::merge_over(&mut merged, user);
-        merged.try_into().map_err(|e: toml::de::Error| err(e.message().trim().to_owned()))
+        let cfg: Self = merged.try_into().map_err(|e: toml::de::Error| err(e.message().trim().to_owned()))?;
+        cfg.check_loop().map_err(err)?;
+        Ok(cfg)
+    }
+
+    /// Checks the closed loop's candidates before any work starts: at least one confirmation
+    /// and one smoothing candidate, no confirmation of 0 raw alarms, and an F1 tolerance that
+    /// is finite and at least 0.
+    ///
+    /// # Errors
+    /// A message naming the field.
+    pub fn check_loop(&self) -> std::result::Result<(), String> {
+        if self.loop_confirm.is_empty() || self.loop_confirm.contains(&0) {
+            return Err(format!("loop_confirm: needs candidates of at least 1 raw alarm, got {:?}", self.loop_confirm));
+        }
+        if self.loop_smooth.is_empty() {
+            return Err("loop_smooth: needs at least one candidate".into());
+        }
+        if let Some(tol) = self.loop_f1_tolerance.filter(|t| !(t.is_finite() && *t >= 0.0)) {
+            return Err(format!("loop_f1_tolerance: must be finite and at least 0, got {tol}"));
+        }
+        Ok(())
     }
 }
 
@@ -816,6 +838,20 @@ mod tests {
         std::fs::write(&path, "[methods.quadformer.train]\nepoch = 7\n").unwrap();
         let e = MatrixConfig::from_toml_file(&path, &MatrixConfig::default()).unwrap_err().to_string();
         assert!(e.contains("m.toml") && e.contains("epoch"), "{e}");
+        for (text, field) in [
+            ("loop_confirm = [1, 0]\n", "loop_confirm"),
+            ("loop_confirm = []\n", "loop_confirm"),
+            ("loop_smooth = []\n", "loop_smooth"),
+            ("loop_f1_tolerance = -0.01\n", "loop_f1_tolerance"),
+            ("loop_f1_tolerance = nan\n", "loop_f1_tolerance"),
+        ] {
+            std::fs::write(&path, text).unwrap();
+            let e = MatrixConfig::from_toml_file(&path, &MatrixConfig::default()).unwrap_err().to_string();
+            assert!(e.contains("m.toml") && e.contains(field), "{text}: {e}");
+        }
+        std::fs::write(&path, "loop_f1_tolerance = 0.02\n").unwrap();
+        let c = MatrixConfig::from_toml_file(&path, &MatrixConfig::default()).unwrap();
+        assert_eq!(c.loop_f1_tolerance, Some(0.02));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
