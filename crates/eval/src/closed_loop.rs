@@ -56,7 +56,7 @@ use crate::io::{AttackRecord, FlightDir, TIME_MATCH_TOL_S, write_text_atomic};
 use crate::methods::{Method, MethodConfigs};
 use crate::metrics::{MeanStd, detection_delays, false_alarms, quantile};
 use crate::plot::{ErrorSeries, error_time_plot};
-use crate::reproduce::{Options, ReproduceError, Result};
+use crate::reproduce::{MatrixConfig, Options, ReproduceError, Result};
 use crate::runner::{fit, read_json_cache, write_json_cache};
 use crate::table::to_csv;
 
@@ -929,8 +929,8 @@ pub fn closed_loop(opts: &Options) -> Result<(Vec<ClosedLoopRow>, Vec<PathBuf>)>
     let p = opts.out.join("closed_loop.csv");
     write_text_atomic(&p, &csv)?;
     files.push(p);
-    for (name, text) in [("table3.md", table3_markdown(&rows, &methods)), ("table3.tex", table3_latex(&rows, &methods))]
-    {
+    let md = table3_markdown(&rows, &methods, &opts.config);
+    for (name, text) in [("table3.md", md), ("table3.tex", table3_latex(&rows, &methods))] {
         let p = opts.out.join(name);
         write_text_atomic(&p, &text)?;
         files.push(p);
@@ -1004,9 +1004,10 @@ fn fmt_ms(m: Option<MeanStd>, digits: usize) -> String {
 }
 
 /// Table III in Markdown: per (model, noise) and latency, F1 and the maximum position error
-/// during attacks of every detector on every family.
+/// during attacks of every detector on every family, then how the fitted detectors' loop
+/// settings were chosen under `cfg` ([`choice_rule_markdown`]).
 #[must_use]
-pub fn table3_markdown(rows: &[ClosedLoopRow], methods: &[LoopMethod]) -> String {
+pub fn table3_markdown(rows: &[ClosedLoopRow], methods: &[LoopMethod], cfg: &MatrixConfig) -> String {
     let mut s = String::new();
     let seeds = {
         let mut v: Vec<u64> = rows.iter().map(|r| r.seed).collect();
@@ -1054,6 +1055,53 @@ pub fn table3_markdown(rows: &[ClosedLoopRow], methods: &[LoopMethod]) -> String
             }
             let _ = writeln!(s);
         }
+    }
+    s.push_str(&choice_rule_markdown(rows, cfg));
+    s
+}
+
+/// The section of `table3.md` that says how each fitted detector's loop setting was chosen:
+/// the candidates and rule of `cfg` ([`loop_setting`]), whether QUADFormer attends causally,
+/// and per detector how many units chose each (confirmation, smoothing) pair.
+#[must_use]
+pub fn choice_rule_markdown(rows: &[ClosedLoopRow], cfg: &MatrixConfig) -> String {
+    let mut s = String::from("## How the fitted detectors' alarms were chosen\n\n");
+    let rule = match cfg.loop_f1_tolerance {
+        Some(tol) => {
+            format!("the quietest candidate (fewest alarm events per clean minute) within {tol} of the best F1")
+        }
+        None => "the candidate with the best F1".to_owned(),
+    };
+    let _ = writeln!(
+        s,
+        "On the trained families' validation flights flown in the loop at latency 0, each fitted detector tried its \
+         threshold candidates at every alarm confirmation in {:?} (raw alarms in a row) and score smoothing in {:?} \
+         (earlier scores averaged with the newest) and kept {rule} (decision 091). QUADFormer attends {}. Per \
+         detector, the units that chose each pair (confirmation k, smoothing w); thresholds, look-backs and \
+         exclusion bounds are in closed_loop.csv.\n",
+        cfg.loop_confirm,
+        cfg.loop_smooth,
+        if cfg.loop_causal { "causally (decision 092)" } else { "over the whole window" },
+    );
+    let _ = writeln!(s, "| detector | units per (k, w) |\n|---|---|");
+    for m in FITTED {
+        // One row per unit: the setting is the unit's, the same for every family and latency.
+        let mut chosen: Vec<(u64, u64)> = rows
+            .iter()
+            .filter(|r| r.method == m.name() && r.latency_s == 0.0 && r.family == Family::Sparse.name())
+            .filter_map(|r| r.confirm.zip(r.smooth))
+            .collect();
+        if chosen.is_empty() {
+            continue;
+        }
+        chosen.sort_unstable();
+        let mut pairs = chosen.clone();
+        pairs.dedup();
+        let counts: Vec<String> = pairs
+            .iter()
+            .map(|p| format!("({}, {}): {}", p.0, p.1, chosen.iter().filter(|c| *c == p).count()))
+            .collect();
+        let _ = writeln!(s, "| {} | {} |", m.name(), counts.join(", "));
     }
     s
 }
@@ -1263,6 +1311,30 @@ mod tests {
         assert_eq!(exclusion_bound_s(&[planned(&[])]), None);
         let valid = [planned(&[(10.0, 14.0), (30.0, 32.0)]), planned(&[(5.0, 25.0)]), planned(&[])];
         assert!((exclusion_bound_s(&valid).unwrap() - (20.0 + EXCLUSION_MARGIN_S)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_choice_section_counts_each_units_setting_once_and_states_the_rule() {
+        let flight = steps(20, |k| (5..10).contains(&k), |k| (6..10).contains(&k));
+        let setting =
+            |confirm, smooth| LoopSetting { threshold: 0.5, lookback_s: 0.0, reset_after_s: None, confirm, smooth };
+        let mut rows = Vec::new();
+        for (seed, (k, w)) in [(0, (2, 0)), (1, (1, 2)), (2, (2, 0))] {
+            let unit = LoopUnit { seed, ..UNIT };
+            for family in [Family::Sparse, Family::Bias] {
+                for latency in LATENCIES_S {
+                    rows.push(row(unit, family, "QUADFormer", latency, Some(setting(k, w)), &[&flight]));
+                }
+            }
+            rows.push(row(unit, Family::Sparse, "Oracle", 0.0, None, &[&flight]));
+        }
+        let md = choice_rule_markdown(&rows, &MatrixConfig::default());
+        assert!(md.contains("| QUADFormer | (1, 2): 1, (2, 0): 2 |"), "{md}");
+        assert!(md.contains("[1, 2]") && md.contains("[0, 2]") && md.contains("the best F1"), "{md}");
+        assert!(!md.contains("| Oracle") && !md.contains("| LSTM"), "{md}");
+        let quiet = MatrixConfig { loop_f1_tolerance: Some(0.02), loop_causal: false, ..MatrixConfig::default() };
+        let md = choice_rule_markdown(&rows, &quiet);
+        assert!(md.contains("within 0.02 of the best F1") && md.contains("over the whole window"), "{md}");
     }
 
     #[test]
