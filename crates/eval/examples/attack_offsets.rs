@@ -6,17 +6,17 @@
 //! an offset under a metre from noise is bounded by the F1 printed for 1 m.
 //!
 //! ```text
-//! cargo run --release -p eval --example attack_offsets [-- --seeds N] [--quick]
+//! cargo run --release -p eval --example attack_offsets [-- [--seeds N] [--quick]]
 //! ```
 //!
-//! The shares pool every unit of the default matrix (both models and noise shapes, every
-//! seed). Only the attack plans are drawn and applied to the clean fixes; nothing is flown or
+//! The shares pool every unit of the matrix (both models and noise shapes, every seed), as
+//! `reproduce-tables` forms them. Only the attack plans are drawn and applied to the clean fixes; nothing is flown or
 //! fitted, so it takes under a minute. The figures are those of the default
 //! `reproduce-tables` configuration (the same flights, attacks and seeds as Table III).
 
 use anyhow::{Context, Result, bail};
-use eval::cell::{NoiseModel, UavModel};
-use eval::closed_loop::{Family, LoopUnit, family_dataset};
+use eval::cell::Cell;
+use eval::closed_loop::{Family, family_dataset, units};
 use eval::dataset::{Split, plan_split};
 use eval::reproduce::{MatrixConfig, Options, Stages};
 
@@ -37,10 +37,10 @@ fn main() -> Result<()> {
         }
     }
     let opts = Options {
-        config: MatrixConfig::default(),
+        config: if quick { MatrixConfig::quick() } else { MatrixConfig::default() },
         quick,
         seeds,
-        cells: vec![],
+        cells: Cell::table_cells(),
         methods: vec![],
         out: "results".into(),
         progress: false,
@@ -53,23 +53,17 @@ fn main() -> Result<()> {
     println!();
     println!("|---|---|{}", "---|".repeat(LEVELS_M.len()));
     for family in Family::ALL {
-        // Every unit of the default matrix: both models and noise shapes, every seed.
         let mut offsets = Vec::new();
-        for model in [UavModel::I, UavModel::II] {
-            for noise in [NoiseModel::Exponential, NoiseModel::Laplace] {
-                for seed in 0..seeds {
-                    let unit = LoopUnit { model, noise, seed };
-                    let cfg = family_dataset(unit, family, &opts).check().with_context(|| {
-                        format!("model {} {} seed {seed} {}", model.roman(), noise.name(), family.name())
-                    })?;
-                    for f in plan_split(&cfg, Split::Test)? {
-                        let gps = &f.flight.streams.gps;
-                        for (i, clean) in gps.iter().enumerate() {
-                            let sent = f.plan.apply(clean, &gps[..i]);
-                            if sent.attacked {
-                                offsets.push(sent.offset.norm());
-                            }
-                        }
+        for unit in units(&opts) {
+            let cfg = family_dataset(unit, family, &opts).check().with_context(|| {
+                format!("model {} {} seed {} {}", unit.model.roman(), unit.noise.name(), unit.seed, family.name())
+            })?;
+            for f in plan_split(&cfg, Split::Test)? {
+                let gps = &f.flight.streams.gps;
+                for (i, clean) in gps.iter().enumerate() {
+                    let sent = f.plan.apply(clean, &gps[..i]);
+                    if sent.attacked {
+                        offsets.push(sent.offset.norm());
                     }
                 }
             }

@@ -33,6 +33,7 @@
 //! Finished units are cached as JSON under `OUT/runs/closed-loop/`, keyed by a hash of
 //! everything that determines them, so an interrupted run resumes.
 
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -1060,48 +1061,62 @@ pub fn table3_markdown(rows: &[ClosedLoopRow], methods: &[LoopMethod], cfg: &Mat
     s
 }
 
+/// Units per (confirmation, smoothing) pair of a detector's loop settings.
+type PairCounts = BTreeMap<(u64, u64), usize>;
+
 /// The section of `table3.md` that says how each fitted detector's loop setting was chosen:
-/// the candidates and rule of `cfg` ([`loop_setting`]), whether QUADFormer attends causally,
-/// and per detector how many units chose each (confirmation, smoothing) pair.
+/// the candidates and rule of `cfg` ([`loop_setting`]), whether QUADFormer attends causally
+/// (when it flew), and per detector how many units chose each (confirmation, smoothing) pair.
+/// Empty when no fitted detector flew.
 #[must_use]
 pub fn choice_rule_markdown(rows: &[ClosedLoopRow], cfg: &MatrixConfig) -> String {
-    let mut s = String::from("## How the fitted detectors' alarms were chosen\n\n");
+    // Per fitted detector, units per (confirmation, smoothing): one row per unit, since the
+    // setting is the unit's, the same for every family and latency.
+    let chosen: Vec<(Method, PairCounts)> = FITTED
+        .iter()
+        .map(|&m| {
+            let counts = rows
+                .iter()
+                .filter(|r| r.method == m.name() && r.latency_s == 0.0 && r.family == Family::Sparse.name())
+                .filter_map(|r| r.confirm.zip(r.smooth))
+                .fold(BTreeMap::new(), |mut acc, pair| {
+                    *acc.entry(pair).or_insert(0) += 1;
+                    acc
+                });
+            (m, counts)
+        })
+        .filter(|(_, counts)| !counts.is_empty())
+        .collect();
+    if chosen.is_empty() {
+        return String::new();
+    }
     let rule = match cfg.loop_f1_tolerance {
         Some(tol) => {
             format!("the quietest candidate (fewest alarm events per clean minute) within {tol} of the best F1")
         }
         None => "the candidate with the best F1".to_owned(),
     };
+    let attention = if !chosen.iter().any(|(m, _)| *m == Method::QuadFormer) {
+        ""
+    } else if cfg.loop_causal {
+        " QUADFormer attends causally (decision 092)."
+    } else {
+        " QUADFormer attends over the whole window."
+    };
+    let mut s = String::from("## How the fitted detectors' alarms were chosen\n\n");
     let _ = writeln!(
         s,
         "On the trained families' validation flights flown in the loop at latency 0, each fitted detector tried its \
          threshold candidates at every alarm confirmation in {:?} (raw alarms in a row) and score smoothing in {:?} \
-         (earlier scores averaged with the newest) and kept {rule} (decision 091). QUADFormer attends {}. Per \
-         detector, the units that chose each pair (confirmation k, smoothing w); thresholds, look-backs and \
-         exclusion bounds are in closed_loop.csv.\n",
-        cfg.loop_confirm,
-        cfg.loop_smooth,
-        if cfg.loop_causal { "causally (decision 092)" } else { "over the whole window" },
+         (earlier scores averaged with the newest) and kept {rule} (decision 091).{attention} Per detector, the \
+         units that chose each pair (confirmation k, smoothing w); thresholds, look-backs and exclusion bounds are \
+         in closed_loop.csv.\n",
+        cfg.loop_confirm, cfg.loop_smooth,
     );
     let _ = writeln!(s, "| detector | units per (k, w) |\n|---|---|");
-    for m in FITTED {
-        // One row per unit: the setting is the unit's, the same for every family and latency.
-        let mut chosen: Vec<(u64, u64)> = rows
-            .iter()
-            .filter(|r| r.method == m.name() && r.latency_s == 0.0 && r.family == Family::Sparse.name())
-            .filter_map(|r| r.confirm.zip(r.smooth))
-            .collect();
-        if chosen.is_empty() {
-            continue;
-        }
-        chosen.sort_unstable();
-        let mut pairs = chosen.clone();
-        pairs.dedup();
-        let counts: Vec<String> = pairs
-            .iter()
-            .map(|p| format!("({}, {}): {}", p.0, p.1, chosen.iter().filter(|c| *c == p).count()))
-            .collect();
-        let _ = writeln!(s, "| {} | {} |", m.name(), counts.join(", "));
+    for (m, counts) in &chosen {
+        let cells: Vec<String> = counts.iter().map(|((k, w), n)| format!("({k}, {w}): {n}")).collect();
+        let _ = writeln!(s, "| {} | {} |", m.name(), cells.join(", "));
     }
     s
 }
@@ -1330,11 +1345,17 @@ mod tests {
         }
         let md = choice_rule_markdown(&rows, &MatrixConfig::default());
         assert!(md.contains("| QUADFormer | (1, 2): 1, (2, 0): 2 |"), "{md}");
-        assert!(md.contains("[1, 2]") && md.contains("[0, 2]") && md.contains("the best F1"), "{md}");
+        assert!(
+            md.contains("[1, 2]") && md.contains("[0, 2]") && md.contains("kept the candidate with the best F1"),
+            "{md}"
+        );
+        assert!(md.contains("attends causally"), "{md}");
         assert!(!md.contains("| Oracle") && !md.contains("| LSTM"), "{md}");
         let quiet = MatrixConfig { loop_f1_tolerance: Some(0.02), loop_causal: false, ..MatrixConfig::default() };
         let md = choice_rule_markdown(&rows, &quiet);
         assert!(md.contains("within 0.02 of the best F1") && md.contains("over the whole window"), "{md}");
+        let reference_only: Vec<ClosedLoopRow> = rows.into_iter().filter(|r| r.method == "Oracle").collect();
+        assert_eq!(choice_rule_markdown(&reference_only, &quiet), "");
     }
 
     #[test]
