@@ -327,11 +327,34 @@ fn merge(splits: Vec<LabelledResidues>) -> Result<LabelledResidues> {
     LabelledResidues::new(flights).map_err(|e| ReproduceError::Config(format!("closed-loop training data: {e}")))
 }
 
-/// Runs one unit (or loads it from the cache).
+/// Where a computed unit's time went, seconds of wall time.
+#[derive(Debug, Clone, Copy, Default)]
+struct UnitTimes {
+    /// Building or loading the trained families' datasets and planning their validation flights.
+    data_s: f64,
+    /// Fitting the detectors on the protected training residues.
+    fit_s: f64,
+    /// Flying the validation flights to choose each fitted detector's loop setting.
+    setting_s: f64,
+    /// Flying the test flights with every detector.
+    test_s: f64,
+}
+
+impl std::fmt::Display for UnitTimes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "datasets {:.0} s, fits {:.0} s, loop settings on validation flights {:.0} s, test flights {:.0} s",
+            self.data_s, self.fit_s, self.setting_s, self.test_s
+        )
+    }
+}
+
+/// Runs one unit (or loads it from the cache), with where its time went when it was computed.
 ///
 /// # Errors
 /// Any stage's error, naming the unit.
-fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<UnitRecord> {
+fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<(UnitRecord, Option<UnitTimes>)> {
     let test_cfgs: Vec<_> = Family::ALL
         .iter()
         .map(|&f| family_dataset(unit, f, opts).check().map_err(dataset_err(unit, f)).map(|c| (f, c)))
@@ -342,10 +365,11 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
     if let Some(rec) = read_json_cache::<UnitRecord>(&path)
         && rec.key == key
     {
-        return Ok(rec);
+        return Ok((rec, None));
     }
 
     // Training and validation data: the trained families' protected flights.
+    let t0 = Instant::now();
     let (mut train, mut valid) = (Vec::new(), Vec::new());
     for &(f, cfg) in &trained_cfgs {
         let f = *f;
@@ -368,9 +392,13 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
         .flatten()
         .collect();
     let mut fitted: Vec<(Method, Box<dyn Detector>, LoopSetting)> = Vec::new();
+    let mut times = UnitTimes { data_s: t0.elapsed().as_secs_f64(), ..UnitTimes::default() };
     for m in methods {
         if let LoopMethod::Fitted(method) = *m {
+            let t0 = Instant::now();
             let det = fit(method, &cfgs, &train, &valid)?.detector;
+            times.fit_s += t0.elapsed().as_secs_f64();
+            let t0 = Instant::now();
             let candidates = LoopCandidates {
                 confirm: &opts.config.loop_confirm,
                 smooth: &opts.config.loop_smooth,
@@ -378,10 +406,12 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
             };
             let setting = loop_setting(det.as_ref(), &valid_flights, &filter, candidates)
                 .map_err(|e| ReproduceError::Config(format!("closed loop {}: {e}", unit.slug())))?;
+            times.setting_s += t0.elapsed().as_secs_f64();
             fitted.push((method, det, setting));
         }
     }
 
+    let t0 = Instant::now();
     let mut rows = Vec::new();
     let mut drift = DriftTrace::default();
     for (family, cfg) in &test_cfgs {
@@ -410,9 +440,10 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<Un
             }
         }
     }
+    times.test_s = t0.elapsed().as_secs_f64();
     let rec = UnitRecord { key, rows, drift };
     write_json_cache(&path, &rec)?;
-    Ok(rec)
+    Ok((rec, Some(times)))
 }
 
 /// Quantiles of the clean validation scores flown at the fitted threshold that are candidates
@@ -903,13 +934,13 @@ pub fn closed_loop(opts: &Options) -> Result<(Vec<ClosedLoopRow>, Vec<PathBuf>)>
             let t0 = Instant::now();
             progress.set_message(format!("closed loop {}", u.slug()));
             let r = run_unit(u, opts, &methods);
-            progress.finish_unit(&format!(
-                "closed loop {} {} in {:.0} s",
-                u.slug(),
-                if r.is_ok() { "done" } else { "failed" },
-                t0.elapsed().as_secs_f64()
-            ));
-            r
+            let how = match &r {
+                Ok((_, Some(times))) => format!("done in {:.0} s: {times}", t0.elapsed().as_secs_f64()),
+                Ok((_, None)) => "read from the cache".to_owned(),
+                Err(_) => format!("failed after {:.0} s", t0.elapsed().as_secs_f64()),
+            };
+            progress.finish_unit(&format!("closed loop {} {how}", u.slug()));
+            r.map(|(rec, _)| rec)
         })
         .collect::<Result<Vec<_>>>()?;
     progress.finish();
