@@ -9,12 +9,13 @@
 //! cargo run --release -p eval --example attack_offsets [-- [--seeds N] [--quick]]
 //! ```
 //!
-//! The shares pool every unit of the matrix (both models and noise shapes, every seed), as
-//! `reproduce-tables` forms them. Only the attack plans are drawn and applied to the clean fixes; nothing is flown or
-//! fitted, so it takes under a minute. The figures are those of the default
-//! `reproduce-tables` configuration (the same flights, attacks and seeds as Table III).
+//! The shares pool every unit of the matrix (both models and noise shapes, every seed), with
+//! the flights, attacks and seeds of `reproduce-tables` (of `--quick` with `--quick`). Only
+//! the attack plans are drawn and injected into the clean fixes (`attack_inject::inject`);
+//! nothing is flown or fitted, so it takes under a minute.
 
 use anyhow::{Context, Result, bail};
+use attack_inject::inject;
 use eval::cell::Cell;
 use eval::closed_loop::{Family, family_dataset, units};
 use eval::dataset::{Split, plan_split};
@@ -52,20 +53,16 @@ fn main() -> Result<()> {
     }
     println!();
     println!("|---|---|{}", "---|".repeat(LEVELS_M.len()));
+    let units = units(&opts);
     for family in Family::ALL {
         let mut offsets = Vec::new();
-        for unit in units(&opts) {
+        for &unit in &units {
             let cfg = family_dataset(unit, family, &opts).check().with_context(|| {
                 format!("model {} {} seed {} {}", unit.model.roman(), unit.noise.name(), unit.seed, family.name())
             })?;
             for f in plan_split(&cfg, Split::Test)? {
-                let gps = &f.flight.streams.gps;
-                for (i, clean) in gps.iter().enumerate() {
-                    let sent = f.plan.apply(clean, &gps[..i]);
-                    if sent.attacked {
-                        offsets.push(sent.offset.norm());
-                    }
-                }
+                let sent = inject(&f.flight.streams.gps, &f.plan)?;
+                offsets.extend(sent.offset.iter().zip(&sent.labels).filter(|(_, a)| **a).map(|(d, _)| d.norm()));
             }
         }
         print!("| {} | {} |", family.name(), offsets.len());
