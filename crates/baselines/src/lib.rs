@@ -5,7 +5,7 @@
 //! (`ekf-residue`) and shares windowing and training with `quadformer-model`; it knows nothing
 //! about evaluation. Statistical detectors work per step on `r_k`, `S_k` and the NIS and have
 //! true recursive [`ekf_residue::OnlineDetector`]s: [`Chi2`], [`Cusum`], [`Sprt`], [`Bht`],
-//! [`Px4Gate`]. Learning detectors classify residue windows: [`Svm`] (RBF kernel, smartcore), [`Cnn`] and
+//! [`Px4Gate`], and the drift test [`Glr`]. Learning detectors classify residue windows: [`Svm`] (RBF kernel, smartcore), [`Cnn`] and
 //! [`Lstm`] (candle, sharing windowing and training with `quadformer-model`).
 //! Every hyper-parameter struct implements [`ekf_residue::Fit`]; thresholds are chosen on the
 //! validation split ([`Tuning::ValidationF1`]) or set to the textbook value
@@ -32,6 +32,7 @@ pub mod common;
 pub mod cusum;
 pub mod error;
 pub mod features;
+pub mod glr;
 pub mod lstm;
 pub mod lstm_online;
 pub mod nn;
@@ -47,6 +48,7 @@ pub use chi2::{Chi2, Chi2Config};
 pub use common::Tuning;
 pub use cusum::{Cusum, CusumConfig};
 pub use error::{BaselineError, Result};
+pub use glr::{Glr, GlrConfig};
 pub use nn::{Cnn, CnnConfig, Lstm, LstmConfig, NeuralConfig};
 pub use px4_gate::{Px4Gate, Px4GateConfig};
 pub use sprt::{Sprt, SprtConfig};

@@ -7,7 +7,7 @@
 //! glitch filter, below 0.1 %), the validation-fitted ones below 1 %.
 
 use baselines::synthetic::{CHANNELS, SyntheticAttack, SyntheticFlight};
-use baselines::{BhtConfig, Chi2Config, CusumConfig, Px4GateConfig, SprtConfig, Tuning};
+use baselines::{BhtConfig, Chi2Config, CusumConfig, GlrConfig, Px4GateConfig, SprtConfig, Tuning};
 use detection_metrics::Confusion;
 use ekf_residue::{DetectError, Detector, Fit, LabelledResidues, LabelledSeries};
 
@@ -46,6 +46,7 @@ fn all(
         Box::new(SprtConfig { tuning, ..Default::default() }.fit(train, valid)?),
         Box::new(BhtConfig { tuning, ..Default::default() }.fit(train, valid)?),
         Box::new(Px4GateConfig { tuning, ..Default::default() }.fit(train, valid)?),
+        Box::new(GlrConfig { tuning, ..Default::default() }.fit(train, valid)?),
     ])
 }
 
@@ -159,11 +160,13 @@ fn detectors_and_configs_are_send_and_sync() {
     check::<baselines::Sprt>();
     check::<baselines::Bht>();
     check::<baselines::Px4Gate>();
+    check::<baselines::Glr>();
     check::<Chi2Config>();
     check::<CusumConfig>();
     check::<SprtConfig>();
     check::<BhtConfig>();
     check::<Px4GateConfig>();
+    check::<GlrConfig>();
 }
 
 /// The closed loop picks its own threshold: CUSUM and SPRT must then restart their statistic
@@ -209,5 +212,70 @@ fn online_at_another_threshold_alarms_and_restarts_there() -> TestResult {
         let d = online.update(&step)?;
         assert_eq!(d.alarm, d.score > t, "SPRT at {}", step.t);
     }
+    Ok(())
+}
+
+/// A drift from zero at 0.2 m/s: the GLR test gathers it over several fixes and alarms while
+/// the offset is still within about 3σ (σ = 0.7 m per axis), where the one-fix χ² test at the
+/// same design rate waits until the offset alone passes its gate (the check can fail: the
+/// χ² test's first alarm comes later on this seed).
+#[test]
+fn the_glr_test_catches_a_slow_drift_before_the_one_fix_test() -> TestResult {
+    let (start_s, slope) = (20.0, 0.2);
+    // A ramp as a sequence of 0.1 s steps of growing bias.
+    let ramp: Vec<SyntheticAttack> = (0..300)
+        .map(|i| {
+            let t = start_s + 0.1 * f64::from(i);
+            SyntheticAttack {
+                start_s: t,
+                end_s: t + 0.1,
+                bias_m: [slope * (t - start_s), 0.0, 0.0],
+                absorb_tau_s: None,
+            }
+        })
+        .collect();
+    let flight = SyntheticFlight::new(600, 51).generate(&ramp)?;
+    let clean_split = LabelledResidues::new(vec![clean(52, 3000)?])?;
+    let glr = GlrConfig { tuning: Tuning::Textbook, ..Default::default() }.fit(&clean_split, &clean_split)?;
+    let chi2 = Chi2Config { tuning: Tuning::Textbook, ..Default::default() }.fit(&clean_split, &clean_split)?;
+    let first = |a: Vec<bool>| a.iter().skip(200).position(|&x| x).map(|k| 0.1 * k as f64 * slope);
+    let glr_at = first(glr.detect(flight.series())?).ok_or("GLR never alarms")?;
+    let chi2_at = first(chi2.detect(flight.series())?).ok_or("chi2 never alarms")?;
+    assert!(glr_at < 2.1, "GLR alarms at an offset of {glr_at:.2} m");
+    assert!(glr_at < chi2_at, "GLR at {glr_at:.2} m, chi2 at {chi2_at:.2} m");
+    Ok(())
+}
+
+/// When a large bias ends, the newest innovations fall back to zero and the end test clears
+/// the GLR alarm within a few fixes, where the sums alone would hold it for the window.
+#[test]
+fn the_glr_alarm_ends_with_the_attack() -> TestResult {
+    let attack = SyntheticAttack { start_s: 20.0, end_s: 30.0, bias_m: [10.0, 0.0, 0.0], absorb_tau_s: None };
+    let flight = SyntheticFlight::new(600, 61).generate(&[attack])?;
+    let clean_split = LabelledResidues::new(vec![clean(62, 3000)?])?;
+    let glr =
+        GlrConfig { tuning: Tuning::Textbook, window: 100, ..Default::default() }.fit(&clean_split, &clean_split)?;
+    let alarms = glr.detect(flight.series())?;
+    let missed: Vec<usize> = (200..300).filter(|&k| !alarms[k]).collect();
+    assert!(missed.is_empty(), "alarms through the bias, missed {missed:?}");
+    let last = alarms.iter().rposition(|&a| a).ok_or("no alarm")?;
+    assert!(last < 305, "the alarm outlasts the attack to step {last}");
+    Ok(())
+}
+
+#[test]
+fn glr_rejects_bad_settings_and_a_state_without_gps() -> TestResult {
+    let train = split(&[71], 1200)?;
+    for cfg in [
+        GlrConfig { window_grid: vec![], ..Default::default() },
+        GlrConfig { window: 0, ..Default::default() },
+        GlrConfig { huber_c: f64::NAN, ..Default::default() },
+        GlrConfig { far: 1.0, ..Default::default() },
+    ] {
+        let err = cfg.fit(&train, &train).err().ok_or("expected a configuration error")?;
+        assert!(matches!(err, baselines::BaselineError::Config { .. }), "{err}");
+    }
+    let att_only = train.select_channels(&CHANNELS[3..])?;
+    assert!(GlrConfig::default().fit(&att_only, &att_only).is_err(), "no GPS channel");
     Ok(())
 }

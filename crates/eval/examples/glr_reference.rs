@@ -8,14 +8,10 @@
 //! gives, the GPS noise and the spoofed offset `d_k`, with nothing absorbed by a filter and no
 //! dead-reckoning error. The tests are causal and read `z` up to the fix they decide:
 //!
-//! - `χ² (one fix)`: `‖z_k‖²`;
-//! - `GLR bias + ramp`: the generalised likelihood ratio of an offset that began within the
-//!   last `M` fixes, constant or growing linearly from zero (Willsky & Jones, IEEE TAC 21(1),
-//!   1976; Basseville & Nikiforov, *Detection of Abrupt Changes*, 1993, §2.4), set to 0 once
-//!   the newest fixes fall back from the trend of the fixes before them towards zero (the
-//!   attack has ended);
-//! - `GLR bias + ramp, Huber-clipped`: the same sums over `z` clipped to ±2σ per axis, so one
-//!   sample of the heavy-tailed noise moves them little (the end test reads `z` unclipped).
+//! - `χ² (one fix)`: `‖z_k‖²` ([`baselines::Chi2`]'s statistic, the NIS);
+//! - `GLR`: [`baselines::Glr`], the generalised likelihood ratio of an offset that began within
+//!   the last `M` fixes, constant or growing linearly from zero, over Huber-clipped errors, with
+//!   its end test (docs/baselines.md).
 //!
 //! Each test's threshold and window `M` (10, 30 or 100 fixes) are chosen per unit on the
 //! validation flights of the trained families (sparse, bias, ramp) pooled, as the loop's
@@ -35,148 +31,69 @@
 
 use anyhow::{Context, Result, bail};
 use attack_inject::inject;
+use baselines::{GlrConfig, Tuning};
+use ekf_residue::residues::GPS_CHANNELS;
+use ekf_residue::{Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
 use eval::cell::Cell;
 use eval::closed_loop::{Family, LoopUnit, family_dataset, units};
 use eval::dataset::{Split, plan_split};
 use eval::reproduce::{MatrixConfig, Options, Stages};
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
-/// Longest onsets the GLR tests look back to, fixes; each test chooses one on validation.
+/// Longest onsets the GLR test looks back to, fixes ([`GlrConfig::window_grid`]'s default);
+/// the test chooses one on validation.
 const WINDOWS: [usize; 3] = [10, 30, 100];
 
 /// The loop's target of alarm events per clean minute.
 const EVENT_BUDGET_PER_MIN: f64 = 0.5;
-
-/// Huber's clipping constant `c` of [`Test::GlrHuber`], in σ: each axis of `z` is clipped to
-/// `[−c, c]` before it enters the sums (Huber, *Robust Statistics*, 1981, ψ of §4.5).
-const HUBER_C: f64 = 2.0;
 
 /// The tests, in row order.
 #[derive(Clone, Copy)]
 enum Test {
     /// `‖z_k‖²`, one fix at a time.
     Chi2,
-    /// The larger of the constant-offset and ramp GLR statistics.
+    /// [`baselines::Glr`].
     Glr,
-    /// [`Test::Glr`] over Huber-clipped errors: a heavy-tailed noise sample moves the sums
-    /// by at most `c` per axis.
-    GlrHuber,
 }
 
 impl Test {
-    const ALL: [Self; 3] = [Self::Chi2, Self::Glr, Self::GlrHuber];
+    const ALL: [Self; 2] = [Self::Chi2, Self::Glr];
 
     fn name(self) -> &'static str {
         match self {
             Self::Chi2 => "χ² (one fix)",
-            Self::Glr => "GLR bias + ramp",
-            Self::GlrHuber => "GLR bias + ramp, Huber-clipped",
+            Self::Glr => "GLR (constant or ramping offset)",
         }
     }
 
     fn windows(self) -> &'static [usize] {
         match self {
             Self::Chi2 => &WINDOWS[..1],
-            Self::Glr | Self::GlrHuber => &WINDOWS,
+            Self::Glr => &WINDOWS,
         }
     }
 
-    /// The statistic of every fix of a flight's whitened GPS errors `z`; the GLR tests look
-    /// back at most `window` fixes for the onset.
-    fn statistic(self, z: &[Vector3<f64>], window: usize) -> Vec<f64> {
+    /// The statistic of every fix of a flight; the GLR test looks back at most `window` fixes
+    /// for the onset.
+    fn statistic(self, flight: &Flight, window: usize) -> Result<Vec<f64>> {
         match self {
-            Self::Chi2 => z.iter().map(Vector3::norm_squared).collect(),
-            Self::Glr => glr(z, z, window),
-            Self::GlrHuber => {
-                let clipped: Vec<Vector3<f64>> = z.iter().map(|v| v.map(|x| x.clamp(-HUBER_C, HUBER_C))).collect();
-                glr(&clipped, z, window)
+            Self::Chi2 => Ok(flight.series.nis().to_vec()),
+            Self::Glr => {
+                // The textbook fit only reads the channels; the window is the one asked for.
+                let split = LabelledResidues::new(vec![LabelledSeries::new(flight.series.clone(), None)?])?;
+                let glr = GlrConfig { tuning: Tuning::Textbook, window, ..GlrConfig::default() }.fit(&split, &split)?;
+                Ok(glr.score(&flight.series)?)
             }
         }
     }
 }
 
-/// The GLR statistic of every fix: the larger of a constant offset's,
-/// `max_m ‖Σ_{i<m} e_{k−i}‖² / m`, and a ramp's from zero, `max_m ‖Σ_{i<m} (m − i) e_{k−i}‖² /
-/// Σ_{j≤m} j²`, over onsets `m ≤ window` fixes back, of the errors `e` (`z` or its clipped
-/// form). 0 where the offset has ended at the newest fixes of `z` ([`ended`]), so an attack's
-/// alarm does not outlast it by the window.
-fn glr(e: &[Vector3<f64>], z: &[Vector3<f64>], window: usize) -> Vec<f64> {
-    (0..e.len())
-        .map(|k| {
-            if ended(z, k) {
-                return 0.0;
-            }
-            // `sum` = Σ e over the `m` newest fixes; `weighted` = Σ (m − i) e_{k−i}, which
-            // grows by `sum` when the onset moves one fix earlier.
-            let (mut best, mut sum, mut weighted, mut sq) = (0.0_f64, Vector3::zeros(), Vector3::zeros(), 0.0);
-            for m in 1..=window.min(k + 1) {
-                sum += e[k + 1 - m];
-                weighted += sum;
-                #[allow(clippy::cast_precision_loss)]
-                let mf = m as f64;
-                sq += mf * mf;
-                best = best.max(sum.norm_squared() / mf).max(weighted.norm_squared() / sq);
-            }
-            best
-        })
-        .collect()
-}
-
-/// Newest fixes an ended attack is judged on.
-const END_FIXES: usize = 3;
-
-/// Fixes before them whose linear trend predicts them.
-const TREND_FIXES: usize = 10;
-
-/// χ²₃ quantile 0.999: the newest fixes' mean departure from the trend beyond it (scaled by
-/// the prediction's own variance) means the offset has ended.
-const END_CHI2: f64 = 16.27;
-
-/// Whether an offset ended at the newest fixes up to `k`: their sum departs from the linear
-/// trend of the `TREND_FIXES` fixes before them by more than `END_CHI2` allows, towards zero
-/// (they are nearer the origin than the trend predicts). An onset moves away from zero and
-/// does not count.
-fn ended(z: &[Vector3<f64>], k: usize) -> bool {
-    if k + 1 < END_FIXES + TREND_FIXES {
-        return false;
-    }
-    // Least-squares line through the trend fixes, at ages t = 0..TREND_FIXES (0 oldest).
-    let first = k + 1 - END_FIXES - TREND_FIXES;
-    #[allow(clippy::cast_precision_loss)]
-    let n = TREND_FIXES as f64;
-    let t_mean = (n - 1.0) / 2.0;
-    let z_mean: Vector3<f64> = (0..TREND_FIXES).map(|i| z[first + i]).sum::<Vector3<f64>>() / n;
-    let (mut cov, mut var) = (Vector3::zeros(), 0.0);
-    for i in 0..TREND_FIXES {
-        #[allow(clippy::cast_precision_loss)]
-        let dt = i as f64 - t_mean;
-        cov += (z[first + i] - z_mean) * dt;
-        var += dt * dt;
-    }
-    let slope = cov / var;
-    let (mut departure, mut pred_sum, mut new_sum, mut pred_var) =
-        (Vector3::zeros(), Vector3::zeros(), Vector3::zeros(), 0.0);
-    for j in 0..END_FIXES {
-        #[allow(clippy::cast_precision_loss)]
-        let t = (TREND_FIXES + j) as f64;
-        let pred = z_mean + slope * (t - t_mean);
-        departure += z[first + TREND_FIXES + j] - pred;
-        pred_sum += pred;
-        new_sum += z[first + TREND_FIXES + j];
-        pred_var += 1.0 / n + (t - t_mean).powi(2) / var;
-    }
-    #[allow(clippy::cast_precision_loss)]
-    let r = END_FIXES as f64;
-    // Variance of the summed departure per axis: r fixes of unit noise plus the prediction's.
-    let stat = departure.norm_squared() / (r + pred_var * r);
-    stat > END_CHI2 && new_sum.norm() < pred_sum.norm()
-}
-
-/// One flight's whitened GPS errors and labels.
+/// One flight's GPS errors against the truth, as a residue series of the GPS channels with
+/// `S = diag σ²`, and its labels.
 struct Flight {
     family: Family,
-    z: Vec<Vector3<f64>>,
+    series: ResidueSeries,
     attacked: Vec<bool>,
     dt_s: f64,
 }
@@ -241,11 +158,11 @@ struct Setting {
 
 /// The settings the two rules choose on validation flights: best F1, and best F1 within the
 /// event budget (`None` when no candidate keeps it, or the flights have no clean fix).
-fn choose(test: Test, valid: &[Flight]) -> [Option<Setting>; 2] {
+fn choose(test: Test, valid: &[Flight]) -> Result<[Option<Setting>; 2]> {
     let mut best: Option<(f64, Setting)> = None;
     let mut quiet: Option<(f64, Setting)> = None;
     for &window in test.windows() {
-        let stats: Vec<Vec<f64>> = valid.iter().map(|f| test.statistic(&f.z, window)).collect();
+        let stats: Vec<Vec<f64>> = valid.iter().map(|f| test.statistic(f, window)).collect::<Result<_>>()?;
         let mut clean: Vec<f64> = stats
             .iter()
             .zip(valid)
@@ -278,7 +195,7 @@ fn choose(test: Test, valid: &[Flight]) -> [Option<Setting>; 2] {
             }
         }
     }
-    [best, quiet].map(|c| c.map(|(_, s)| s))
+    Ok([best, quiet].map(|c| c.map(|(_, s)| s)))
 }
 
 /// A unit's flights of one split, every family.
@@ -302,18 +219,45 @@ fn flights(unit: LoopUnit, split: Split, opts: &Options) -> Result<Vec<Flight>> 
                     family.name()
                 );
             }
-            let z = sent
-                .gps
-                .iter()
-                .map(|fix| {
-                    let i = truth.partition_point(|s| s.t < fix.t).min(truth.len().saturating_sub(1));
-                    let i =
-                        if i > 0 && (truth[i - 1].t - fix.t).abs() < (truth[i].t - fix.t).abs() { i - 1 } else { i };
-                    (fix.p - truth[i].p).component_div(&sigma)
-                })
-                .collect();
-            out.push(Flight { family, z, attacked: sent.labels, dt_s });
+            let (mut t, mut r) = (Vec::with_capacity(sent.gps.len()), Vec::with_capacity(3 * sent.gps.len()));
+            for fix in &sent.gps {
+                let i = truth.partition_point(|s| s.t < fix.t).min(truth.len().saturating_sub(1));
+                let i = if i > 0 && (truth[i - 1].t - fix.t).abs() < (truth[i].t - fix.t).abs() { i - 1 } else { i };
+                t.push(fix.t);
+                r.extend((fix.p - truth[i].p).iter());
+            }
+            let s_k = Matrix3::from_diagonal(&sigma.component_mul(&sigma));
+            let s = std::iter::repeat_n(s_k.iter().copied().collect::<Vec<f64>>(), t.len()).flatten().collect();
+            let channels = GPS_CHANNELS.iter().map(|c| (*c).to_owned()).collect();
+            let series = ResidueSeries::from_flat(t, channels, r, s)?;
+            out.push(Flight { family, series, attacked: sent.labels, dt_s });
         }
+    }
+    Ok(out)
+}
+
+/// Per test and rule (best F1, within the budget), a unit's test counts per family and over
+/// every family (last), at the setting chosen on its validation flights.
+fn unit_counts(unit: LoopUnit, opts: &Options) -> Result<Vec<[Option<Vec<Counts>>; 2]>> {
+    let valid: Vec<Flight> =
+        flights(unit, Split::Valid, opts)?.into_iter().filter(|f| Family::TRAINED.contains(&f.family)).collect();
+    let test = flights(unit, Split::Test, opts)?;
+    let mut out = Vec::new();
+    for t in Test::ALL {
+        let mut rules = [None, None];
+        for (rule, setting) in rules.iter_mut().zip(choose(t, &valid)?) {
+            let Some(s) = setting else { continue };
+            let mut counts = vec![Counts::default(); Family::ALL.len() + 1];
+            for f in &test {
+                let alarms = t.statistic(f, s.window)?;
+                let family = Family::ALL.iter().position(|x| *x == f.family).unwrap_or(0);
+                for c in [family, Family::ALL.len()] {
+                    counts[c].add(alarms.iter().map(|v| *v > s.threshold), &f.attacked, f.dt_s);
+                }
+            }
+            *rule = Some(counts);
+        }
+        out.push(rules);
     }
     Ok(out)
 }
@@ -343,34 +287,8 @@ fn main() -> Result<()> {
     };
     let units = units(&opts);
     // Per unit, per test, per rule: test counts per family and over every family.
-    let per_unit: Vec<Vec<[Option<Vec<Counts>>; 2]>> = units
-        .par_iter()
-        .map(|&unit| -> Result<_> {
-            let valid: Vec<Flight> = flights(unit, Split::Valid, &opts)?
-                .into_iter()
-                .filter(|f| Family::TRAINED.contains(&f.family))
-                .collect();
-            let test = flights(unit, Split::Test, &opts)?;
-            Ok(Test::ALL
-                .iter()
-                .map(|&t| {
-                    choose(t, &valid).map(|s| {
-                        s.map(|s| {
-                            let mut counts = vec![Counts::default(); Family::ALL.len() + 1];
-                            for f in &test {
-                                let alarms = t.statistic(&f.z, s.window);
-                                let family = Family::ALL.iter().position(|x| *x == f.family).unwrap_or(0);
-                                for c in [family, Family::ALL.len()] {
-                                    counts[c].add(alarms.iter().map(|v| *v > s.threshold), &f.attacked, f.dt_s);
-                                }
-                            }
-                            counts
-                        })
-                    })
-                })
-                .collect())
-        })
-        .collect::<Result<_>>()?;
+    let per_unit: Vec<Vec<[Option<Vec<Counts>>; 2]>> =
+        units.par_iter().map(|&unit| unit_counts(unit, &opts)).collect::<Result<_>>()?;
 
     print!("| test | rule |");
     for family in Family::ALL {

@@ -74,8 +74,8 @@ pub const DRIFT_CATCH_M: f64 = 3.0;
 pub const LATENCIES_S: [f64; 2] = [0.0, 1.0];
 
 /// The fitted detectors of the loop, in table order.
-pub const FITTED: [Method; 6] =
-    [Method::Cusum, Method::Sprt, Method::Chi2, Method::Cnn, Method::Lstm, Method::QuadFormer];
+pub const FITTED: [Method; 7] =
+    [Method::Cusum, Method::Sprt, Method::Chi2, Method::Glr, Method::Cnn, Method::Lstm, Method::QuadFormer];
 
 /// An attack family of the closed-loop experiment: one column of Table III.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]

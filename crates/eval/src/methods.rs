@@ -16,7 +16,9 @@ use ekf_residue::{Detector, Fit, LabelledResidues};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-use baselines::{BhtConfig, Chi2Config, CnnConfig, CusumConfig, LstmConfig, Px4GateConfig, SprtConfig, SvmConfig};
+use baselines::{
+    BhtConfig, Chi2Config, CnnConfig, CusumConfig, GlrConfig, LstmConfig, Px4GateConfig, SprtConfig, SvmConfig,
+};
 use nn_toolkit::WindowConfig;
 use quadformer_model::{QuadFormerConfig, QuadFormerDetector};
 
@@ -507,6 +509,22 @@ registry! {
     Px4Gate(px4_gate: Px4GateConfig) {
         const SLUG: &'static str = "px4-gate";
         const NAME: &'static str = "PX4 gate";
+        const GROUP: MethodGroup = MethodGroup::Extra;
+        const NEEDS_GPS: bool = true;
+
+        fn save(det: &Self::Detector) -> Result<Vec<StateFile>, String> {
+            save_json(det)
+        }
+
+        fn load(state: &SavedState<'_>) -> Result<Self::Detector, ModelDirError> {
+            load_json(state)
+        }
+    }
+
+    /// GLR drift test on the GPS innovation (extra row).
+    Glr(glr: GlrConfig) {
+        const SLUG: &'static str = "glr";
+        const NAME: &'static str = "GLR";
         const GROUP: MethodGroup = MethodGroup::Extra;
         const NEEDS_GPS: bool = true;
 

@@ -102,6 +102,7 @@ round_trips! {
     quadformer_round_trip: QuadFormer,
     chi2_round_trip: Chi2,
     px4_gate_round_trip: Px4Gate,
+    glr_round_trip: Glr,
 }
 
 #[test]

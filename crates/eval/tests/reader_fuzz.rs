@@ -432,7 +432,7 @@ proptest! {
 }
 
 /// Methods whose saved state is a `detector.json` of their fitted parameters.
-const JSON_STATE_METHODS: [&str; 6] = ["cusum", "sprt", "bht", "chi2", "px4-gate", "svm"];
+const JSON_STATE_METHODS: [&str; 7] = ["cusum", "sprt", "bht", "chi2", "px4-gate", "glr", "svm"];
 
 /// One model directory per method of [`JSON_STATE_METHODS`], trained once on the fixture's
 /// residues (in the directory `residues/`).
