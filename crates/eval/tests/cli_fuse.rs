@@ -207,6 +207,14 @@ fn fuse_flies_a_flight_folder_in_the_loop() {
     let attacked = rows.iter().filter(|r| r.1 == 1).count();
     let caught = rows.iter().filter(|r| r.1 == 1 && r.3 == 1).count();
     assert!(caught * 2 > attacked, "smoothed: GPS excluded on {caught} of {attacked} attacked fixes");
+    // The GLR drift test, fitted on the quick cell, flies the same folder and excludes GPS on
+    // most attacked fixes too.
+    let glr = dir.path().join("glr");
+    let o = quadformer(&["fuse", "--in", s(&fixture), "--detector", "glr", "--latency-s", "0", "--out", s(&glr)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rows = loop_rows(&glr.join("loop.csv"));
+    let caught = rows.iter().filter(|r| r.1 == 1 && r.3 == 1).count();
+    assert!(caught * 2 > attacked, "GLR: GPS excluded on {caught} of {attacked} attacked fixes");
     // A scenario and a folder at once is refused.
     let o = quadformer(&["fuse", "--scenario", "eight", "--in", s(&fixture), "--out", s(&out)]);
     assert!(!o.status.success());

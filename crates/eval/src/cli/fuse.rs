@@ -87,6 +87,8 @@ pub enum DetectorArg {
     Chi2,
     /// CUSUM on the NIS, fitted (or loaded with --model).
     Cusum,
+    /// GLR drift test on the GPS innovation, fitted (or loaded with --model).
+    Glr,
     /// QUADFormer, trained on the quick cell (or loaded with --model).
     Quadformer,
 }
@@ -99,6 +101,7 @@ impl DetectorArg {
             Self::Nis => "nis",
             Self::Chi2 => "chi2",
             Self::Cusum => "cusum",
+            Self::Glr => "glr",
             Self::Quadformer => "quadformer",
         }
     }
@@ -108,6 +111,7 @@ impl DetectorArg {
             Self::Nis => None,
             Self::Chi2 => Some(Method::Chi2),
             Self::Cusum => Some(Method::Cusum),
+            Self::Glr => Some(Method::Glr),
             Self::Quadformer => Some(Method::QuadFormer),
         }
     }
@@ -115,7 +119,7 @@ impl DetectorArg {
 
 /// Arguments of `quadformer fuse`.
 #[derive(Debug, clap::Args)]
-#[command(after_help = "Fitted detectors (chi2, cusum, quadformer without --model) are fitted on the quick \
+#[command(after_help = "Fitted detectors (chi2, cusum, glr, quadformer without --model) are fitted on the quick \
 dataset cell m2-gaussian-a2 restricted to gps_x gps_y gps_z (cached under --cache); see \
 docs/decisions/090-fuse-detectors.md and docs/scenarios.md.")]
 pub struct Args {
@@ -135,7 +139,7 @@ pub struct Args {
     /// Detector of the detected case.
     #[arg(long, value_enum, default_value = "nis")]
     pub detector: DetectorArg,
-    /// Model directory written by `quadformer train` (chi2, cusum or quadformer; its method must
+    /// Model directory written by `quadformer train` (chi2, cusum, glr or quadformer; its method must
     /// match --detector).
     #[arg(long, value_name = "MODEL_DIR")]
     pub model: Option<PathBuf>,
