@@ -60,6 +60,18 @@ pub(crate) fn quantile_grid(values: &[f64], n: usize) -> Vec<f64> {
     out
 }
 
+/// Indices of the channels whose names start with `prefix` (the GPS channels).
+///
+/// # Errors
+/// [`DetectError::Data`] naming the prefix and the channels when none matches.
+pub(crate) fn gps_indices(channels: &[String], prefix: &str) -> Result<Vec<usize>, DetectError> {
+    let idx: Vec<usize> = channels.iter().enumerate().filter(|(_, c)| c.starts_with(prefix)).map(|(i, _)| i).collect();
+    if idx.is_empty() {
+        return Err(DetectError::Data { msg: format!("no channel starts with `{prefix}` among {channels:?}") });
+    }
+    Ok(idx)
+}
+
 /// Checks that a grid is non-empty with finite values in `(lo, ∞)`.
 pub(crate) fn check_grid(field: &'static str, grid: &[f64], lo: f64) -> Result<(), crate::BaselineError> {
     if grid.is_empty() || grid.iter().any(|v| !(v.is_finite() && *v > lo)) {

@@ -5,27 +5,31 @@
 //! Changes*, 1993, §2.4). It gathers the evidence of a slow drift over several fixes, where a
 //! one-fix test (χ², PX4's gate) waits until the offset alone passes its gate.
 //!
-//! With `z_k = L_k⁻¹ ν_k` the GPS innovation whitened by its covariance (`S_k = L_k L_kᵀ` over
-//! the GPS channels) and `e_k = clip(z_k, ±c)` per axis (Huber's ψ, *Robust Statistics*, 1981,
-//! §4.5, so one sample of heavy-tailed noise moves the sums by at most `c`):
+//! With `u_k = L_k⁻¹ ν_k` the GPS innovation whitened by the Cholesky factor of its covariance
+//! block (`S_k = L_k L_kᵀ` over the `n` GPS channels) and `e_k = clip(u_k, ±c)` per axis
+//! (Huber's ψ, *Robust Statistics*, 1981, so one sample of heavy-tailed noise moves the sums by
+//! at most `c`):
 //!
 //! ```text
-//! bias_k = max_{1≤m≤M} ‖Σ_{i<m} e_{k−i}‖² / m                       constant offset, onset m fixes back
-//! ramp_k = max_{1≤m≤M} ‖Σ_{i<m} (m − i) e_{k−i}‖² / Σ_{j≤m} j²      offset growing from zero
-//! g_k    = max(‖z_k‖², bias_k, ramp_k)                                        alarm iff g_k > h
+//! bias_k = max_{1≤m≤M} ‖Σ_{i<m} e_{k−i}‖² / m                    constant offset, onset m back
+//! ramp_k = max_{1≤m≤M} ‖Σ_{i<m} (m − i) e_{k−i}‖² / Σ_{j≤m} j²   offset growing from zero
+//! g_k    = max(‖u_k‖², bias_k, ramp_k)                            alarm iff g_k > h
 //! ```
 //!
-//! Each term is the log-likelihood ratio (×2) of its offset model against none, maximised over
-//! the offset (white unit-variance noise); the newest fix enters `‖z_k‖²` unclipped, so a gross
-//! offset alarms at its first fix (the one-fix χ² test), while the sums over several fixes
-//! read the clipped `e` and one heavy-tailed sample cannot hold them up. **End test:** when the sum of the newest
-//! `END_FIXES` whitened innovations fits no offset and departs from the mean level of the
-//! `LEVEL_FIXES` before them, both at the χ²₃ 0.999 quantile, the offset has ended: the
-//! fixes before the newest leave the memory, so the sums start after the end; without it an
-//! alarm would outlast its attack by up to `M` fixes. An onset or a growing drift moves away
-//! from zero and does not count. Validation setting: the window `M` from a grid and the threshold `h` maximising
-//! F1; textbook setting: `M` = 30 fixes and `h` the χ²_n quantile of `1 − far / M`
-//! (Bonferroni over the onsets).
+//! Each term is twice the log-likelihood ratio of its offset model against none, maximised over
+//! the offset (white unit-variance noise); the newest fix enters `‖u_k‖²` unclipped, so a gross
+//! offset alarms at its first fix (the one-fix χ² test), while the sums over several fixes read
+//! the clipped `e` and one heavy-tailed sample cannot hold them up.
+//!
+//! **End test:** when the sum of the newest `END_FIXES` whitened innovations fits no offset and
+//! departs from the mean level of the `LEVEL_FIXES` before them, both at the χ²_n 0.999
+//! quantile, the offset has ended and all but the newest `END_FIXES` innovations leave the
+//! memory, so later sums start after the end; without it an alarm would outlast its attack by
+//! up to `M` fixes. An onset or a growing drift moves away from zero and does not count.
+//!
+//! Validation setting: the window `M` from a grid and the threshold `h` maximising F1.
+//! Textbook setting: `M` = 30 fixes and `h` the χ²_n quantile of `1 − far / (2M + 1)`, a union
+//! bound over the `2M + 1` statistics of a step.
 //!
 //! Only the GPS channels (names starting with `gps_channel_prefix`) are read.
 
@@ -37,7 +41,7 @@ use ekf_residue::{
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
-use crate::common::{Tuning, fit_channels, labelled_valid};
+use crate::common::{Tuning, fit_channels, gps_indices, labelled_valid};
 use crate::error::{BaselineError, Result, step_dim_error};
 use crate::stats::chi2_quantile;
 
@@ -47,8 +51,8 @@ const END_FIXES: usize = 3;
 /// Innovations before them whose mean is the offset's level.
 const LEVEL_FIXES: usize = 10;
 
-/// χ²₃ quantile 0.999, the bound of both halves of the end test.
-const END_CHI2: f64 = 16.27;
+/// Quantile of χ²_n at which both halves of the end test reject.
+const END_QUANTILE: f64 = 0.999;
 
 /// Hyper-parameters of the GLR drift test.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -97,7 +101,7 @@ pub struct Glr {
 
 impl crate::JsonState for Glr {
     fn check_state(&self) -> Result<()> {
-        use crate::state::{check_channels, check_finite, state_err};
+        use crate::state::{check_channel_indices, check_channels, check_finite, state_err};
         check_channels(&self.channels)?;
         check_finite("huber_c, threshold", &[self.huber_c, self.threshold])?;
         if self.window == 0 || self.window > MAX_WINDOW {
@@ -106,13 +110,7 @@ impl crate::JsonState for Glr {
         if self.huber_c <= 0.0 {
             return Err(state_err(format!("huber_c: {} is not positive", self.huber_c)));
         }
-        if self.gps_idx.is_empty() {
-            return Err(state_err("gps_idx: empty".into()));
-        }
-        if let Some(i) = self.gps_idx.iter().position(|&k| k >= self.channels.len()) {
-            return Err(state_err(format!("gps_idx[{i}]: {} is not a channel index", self.gps_idx[i])));
-        }
-        Ok(())
+        check_channel_indices("gps_idx", &self.gps_idx, self.channels.len())
     }
 }
 
@@ -132,44 +130,50 @@ impl Glr {
     }
 }
 
-/// The recursion's memory: the newest whitened innovations `z` and their clipped form `e`,
+/// The recursion's memory: the newest whitened innovations `u` and their clipped form `e`,
 /// newest last.
 #[derive(Debug, Clone)]
 struct GlrState {
-    z: VecDeque<DVector<f64>>,
+    u: VecDeque<DVector<f64>>,
     e: VecDeque<DVector<f64>>,
     capacity: usize,
+    /// The χ²_n quantile of the end test.
+    end_bound: f64,
 }
 
 impl GlrState {
-    fn new(window: usize) -> Self {
+    fn new(window: usize, n_gps: usize) -> Self {
         let capacity = window.max(END_FIXES + LEVEL_FIXES);
-        Self { z: VecDeque::with_capacity(capacity + 1), e: VecDeque::with_capacity(capacity + 1), capacity }
+        // `n_gps ≥ 1` (checked on fit and load), so the quantile exists; without it the end
+        // test would never fire.
+        #[allow(clippy::cast_precision_loss)]
+        let end_bound = chi2_quantile(n_gps as f64, END_QUANTILE).unwrap_or(f64::INFINITY);
+        Self { u: VecDeque::with_capacity(capacity + 1), e: VecDeque::with_capacity(capacity + 1), capacity, end_bound }
     }
 
     /// Adds the step's innovation and returns `g_k`.
     fn step(&mut self, glr: &Glr, window: usize, r_k: &[f64], s_k: &[f64]) -> f64 {
-        let Some(z) = whitened(&glr.gps_idx, r_k, s_k) else {
+        let Some(u) = whitened(&glr.gps_idx, r_k, s_k) else {
             // A non-finite innovation or covariance alarms (as PX4 rejects a non-finite ratio)
             // and is not kept.
             return f64::INFINITY;
         };
-        let e = z.map(|x| x.clamp(-glr.huber_c, glr.huber_c));
-        if self.z.len() == self.capacity {
-            self.z.pop_front();
+        let e = u.map(|x| x.clamp(-glr.huber_c, glr.huber_c));
+        if self.u.len() == self.capacity {
+            self.u.pop_front();
             self.e.pop_front();
         }
-        self.z.push_back(z);
+        self.u.push_back(u);
         self.e.push_back(e);
         if self.ended() {
             // The ended offset's fixes leave the memory: later onsets start after it.
-            let stale = self.z.len() - END_FIXES;
-            self.z.drain(..stale);
+            let stale = self.u.len() - END_FIXES;
+            self.u.drain(..stale);
             self.e.drain(..stale);
         }
         let n = glr.gps_idx.len();
         // The newest fix unclipped: a gross offset alarms at its first fix.
-        let newest = self.z.back().map_or(0.0, DVector::norm_squared);
+        let newest = self.u.back().map_or(0.0, DVector::norm_squared);
         let (mut best, mut sum, mut weighted, mut sq) = (newest, DVector::zeros(n), DVector::zeros(n), 0.0);
         for (m, e) in self.e.iter().rev().take(window).enumerate() {
             // Onset m + 1 fixes back: `weighted` = Σ (m + 1 − i) e_{k−i} grows by `sum`.
@@ -185,39 +189,41 @@ impl GlrState {
 
     /// The end test of the module doc on the newest innovations.
     fn ended(&self) -> bool {
-        let len = self.z.len();
+        let len = self.u.len();
         if len < END_FIXES + LEVEL_FIXES {
             return false;
         }
-        let sum =
-            |range: std::ops::Range<usize>| self.z.range(range).fold(DVector::zeros(self.z[0].len()), |acc, z| acc + z);
-        let newest = sum(len - END_FIXES..len);
+        let sum_of =
+            |range: std::ops::Range<usize>| self.u.range(range).fold(DVector::zeros(self.u[0].len()), |acc, u| acc + u);
+        let newest = sum_of(len - END_FIXES..len);
         #[allow(clippy::cast_precision_loss)]
-        let (r, n) = (END_FIXES as f64, LEVEL_FIXES as f64);
-        let level = sum(len - END_FIXES - LEVEL_FIXES..len - END_FIXES) / n;
-        // Per axis, Σ newest has variance r under no offset; Σ newest − r·level has
-        // r + r²/n under the level.
-        let fits_zero = newest.norm_squared() / r <= END_CHI2;
-        let leaves_level = (&newest - level * r).norm_squared() / (r + r * r / n) > END_CHI2;
+        let (r, n_level) = (END_FIXES as f64, LEVEL_FIXES as f64);
+        let level = sum_of(len - END_FIXES - LEVEL_FIXES..len - END_FIXES) / n_level;
+        // Per axis, the newest sum has variance r under no offset, and its departure from r
+        // times the level r + r²/n_level under the level.
+        let fits_zero = newest.norm_squared() / r <= self.end_bound;
+        let leaves_level = (&newest - level * r).norm_squared() / (r + r * r / n_level) > self.end_bound;
         fits_zero && leaves_level
     }
 }
 
 /// The GPS innovation of a step whitened by the Cholesky factor of its covariance block, or
-/// `None` when it is not finite or the block is not positive definite.
+/// `None` when the innovation or the block is not finite or the block not positive definite.
 fn whitened(gps_idx: &[usize], r_k: &[f64], s_k: &[f64]) -> Option<DVector<f64>> {
     let m = r_k.len();
     let n = gps_idx.len();
     let nu = DVector::from_iterator(n, gps_idx.iter().map(|&i| r_k[i]));
     let s = DMatrix::from_fn(n, n, |a, b| s_k[gps_idx[a] * m + gps_idx[b]]);
+    if !(nu.iter().all(|x| x.is_finite()) && s.iter().all(|x| x.is_finite())) {
+        return None;
+    }
     let l = s.cholesky()?;
-    let z = l.l().solve_lower_triangular(&nu)?;
-    z.iter().all(|x| x.is_finite()).then_some(z)
+    let u = l.l().solve_lower_triangular(&nu)?;
+    u.iter().all(|x| x.is_finite()).then_some(u)
 }
-
 fn glr_run(glr: &Glr, window: usize, series: &ResidueSeries, mut sink: impl FnMut(f64)) {
     let m = series.dim();
-    let mut st = GlrState::new(window);
+    let mut st = GlrState::new(window, glr.gps_idx.len());
     for (r_k, s_k) in series.r().chunks_exact(m).zip(series.s().chunks_exact(m * m)) {
         sink(st.step(glr, window, r_k, s_k));
     }
@@ -245,25 +251,14 @@ impl Fit for GlrConfig {
             return Err(BaselineError::Config { field: "far", msg: format!("must lie in (0, 1), got {}", self.far) });
         }
         let channels = fit_channels(train, valid)?;
-        let gps_idx: Vec<usize> = channels
-            .iter()
-            .enumerate()
-            .filter(|(_, c)| c.starts_with(&self.gps_channel_prefix))
-            .map(|(i, _)| i)
-            .collect();
-        if gps_idx.is_empty() {
-            return Err(DetectError::Data {
-                msg: format!("no channel starts with `{}` among {channels:?}", self.gps_channel_prefix),
-            }
-            .into());
-        }
+        let gps_idx = gps_indices(&channels, &self.gps_channel_prefix)?;
         let mut glr =
             Glr { channels, gps_idx, window: self.window, huber_c: self.huber_c, threshold: 0.0, tuning: self.tuning };
         match self.tuning {
             Tuning::Textbook => {
                 #[allow(clippy::cast_precision_loss)]
-                let (n, w) = (glr.gps_idx.len() as f64, self.window as f64);
-                glr.threshold = chi2_quantile(n, 1.0 - self.far / w)?;
+                let (n, statistics) = (glr.gps_idx.len() as f64, (2 * self.window + 1) as f64);
+                glr.threshold = chi2_quantile(n, 1.0 - self.far / statistics)?;
             }
             Tuning::ValidationF1 => {
                 let pairs = labelled_valid(valid)?;
@@ -317,7 +312,7 @@ impl Detector for Glr {
     }
 
     fn online(&self) -> Box<dyn OnlineDetector + '_> {
-        Box::new(GlrOnline { glr: self, state: GlrState::new(self.window) })
+        Box::new(GlrOnline { glr: self, state: GlrState::new(self.window, self.gps_idx.len()) })
     }
 }
 
@@ -339,6 +334,6 @@ impl OnlineDetector for GlrOnline<'_> {
     }
 
     fn reset(&mut self) {
-        self.state = GlrState::new(self.glr.window);
+        self.state = GlrState::new(self.glr.window, self.glr.gps_idx.len());
     }
 }

@@ -26,7 +26,7 @@ use ekf_residue::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::common::{Tuning, check_grid, f1_of, fit_channels, labelled_valid};
+use crate::common::{Tuning, check_grid, f1_of, fit_channels, gps_indices, labelled_valid};
 use crate::error::{BaselineError, Result, step_dim_error};
 
 /// Hyper-parameters of the PX4-style gate.
@@ -73,16 +73,10 @@ pub struct Px4Gate {
 
 impl crate::JsonState for Px4Gate {
     fn check_state(&self) -> Result<()> {
-        use crate::state::{check_channels, check_finite, state_err};
+        use crate::state::{check_channel_indices, check_channels, check_finite};
         check_channels(&self.channels)?;
         check_finite("gamma, reset_timeout_s", &[self.gamma, self.reset_timeout_s])?;
-        if self.gps_idx.is_empty() {
-            return Err(state_err("gps_idx: empty".into()));
-        }
-        if let Some(i) = self.gps_idx.iter().position(|&k| k >= self.channels.len()) {
-            return Err(state_err(format!("gps_idx[{i}]: {} is not a channel index", self.gps_idx[i])));
-        }
-        Ok(())
+        check_channel_indices("gps_idx", &self.gps_idx, self.channels.len())
     }
 }
 
@@ -156,18 +150,7 @@ impl Fit for Px4GateConfig {
         check_grid("gamma_grid", &self.gamma_grid, 0.0)?;
         check_grid("reset_timeout_s", &[self.reset_timeout_s], 0.0)?;
         let channels = fit_channels(train, valid)?;
-        let gps_idx: Vec<usize> = channels
-            .iter()
-            .enumerate()
-            .filter(|(_, c)| c.starts_with(&self.gps_channel_prefix))
-            .map(|(i, _)| i)
-            .collect();
-        if gps_idx.is_empty() {
-            return Err(DetectError::Data {
-                msg: format!("no channel starts with `{}` among {channels:?}", self.gps_channel_prefix),
-            }
-            .into());
-        }
+        let gps_idx = gps_indices(&channels, &self.gps_channel_prefix)?;
         let mut gate = Px4Gate {
             channels,
             gps_idx,

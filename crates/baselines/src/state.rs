@@ -1,5 +1,5 @@
 //! Saved fitted states of the detectors: the statistical detectors ([`crate::Chi2`],
-//! [`crate::Cusum`], [`crate::Sprt`], [`crate::Bht`], [`crate::Px4Gate`]) and the SVM
+//! [`crate::Cusum`], [`crate::Sprt`], [`crate::Bht`], [`crate::Px4Gate`], [`crate::Glr`]) and the SVM
 //! ([`crate::Svm`]) as JSON of their fitted parameters (docs/decisions/110-method-registry.md);
 //! the CNN and LSTM as safetensors weights plus a JSON manifest ([`crate::nn`]).
 //!
@@ -64,6 +64,21 @@ pub(crate) fn check_channels(channels: &[String]) -> Result<()> {
         if c.is_empty() || channels[..i].contains(c) {
             return Err(state_err(format!("channels[{i}]: `{c}` is empty or repeated")));
         }
+    }
+    Ok(())
+}
+
+/// Checks that `idx` is a non-empty, strictly increasing list of indices into `n_channels`
+/// channels (the GPS channels a gate or drift test reads).
+pub(crate) fn check_channel_indices(field: &str, idx: &[usize], n_channels: usize) -> Result<()> {
+    if idx.is_empty() {
+        return Err(state_err(format!("{field}: empty")));
+    }
+    if let Some(i) = idx.iter().position(|&k| k >= n_channels) {
+        return Err(state_err(format!("{field}[{i}]: {} is not a channel index", idx[i])));
+    }
+    if let Some(i) = idx.windows(2).position(|w| w[0] >= w[1]) {
+        return Err(state_err(format!("{field}[{}]: {} does not follow {}", i + 1, idx[i + 1], idx[i])));
     }
     Ok(())
 }

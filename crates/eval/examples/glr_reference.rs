@@ -32,6 +32,7 @@
 use anyhow::{Context, Result, bail};
 use attack_inject::inject;
 use baselines::{GlrConfig, Tuning};
+use detection_metrics::Confusion;
 use ekf_residue::residues::GPS_CHANNELS;
 use ekf_residue::{Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
 use eval::cell::Cell;
@@ -41,17 +42,13 @@ use eval::reproduce::{MatrixConfig, Options, Stages};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
-/// Longest onsets the GLR test looks back to, fixes ([`GlrConfig::window_grid`]'s default);
-/// the test chooses one on validation.
-const WINDOWS: [usize; 3] = [10, 30, 100];
-
 /// The loop's target of alarm events per clean minute.
 const EVENT_BUDGET_PER_MIN: f64 = 0.5;
 
 /// The tests, in row order.
 #[derive(Clone, Copy)]
 enum Test {
-    /// `‖z_k‖²`, one fix at a time.
+    /// `‖u_k‖²`, one fix at a time (the NIS).
     Chi2,
     /// [`baselines::Glr`].
     Glr,
@@ -67,19 +64,21 @@ impl Test {
         }
     }
 
-    fn windows(self) -> &'static [usize] {
+    /// The look-back windows the test chooses from on validation: the GLR test's default grid
+    /// ([`GlrConfig::window_grid`]); the χ² test has none.
+    fn windows(self) -> Vec<Option<usize>> {
         match self {
-            Self::Chi2 => &WINDOWS[..1],
-            Self::Glr => &WINDOWS,
+            Self::Chi2 => vec![None],
+            Self::Glr => GlrConfig::default().window_grid.into_iter().map(Some).collect(),
         }
     }
 
     /// The statistic of every fix of a flight; the GLR test looks back at most `window` fixes
     /// for the onset.
-    fn statistic(self, flight: &Flight, window: usize) -> Result<Vec<f64>> {
-        match self {
-            Self::Chi2 => Ok(flight.series.nis().to_vec()),
-            Self::Glr => {
+    fn statistic(self, flight: &Flight, window: Option<usize>) -> Result<Vec<f64>> {
+        match (self, window) {
+            (Self::Chi2, _) | (Self::Glr, None) => Ok(flight.series.nis().to_vec()),
+            (Self::Glr, Some(window)) => {
                 // The textbook fit only reads the channels; the window is the one asked for.
                 let split = LabelledResidues::new(vec![LabelledSeries::new(flight.series.clone(), None)?])?;
                 let glr = GlrConfig { tuning: Tuning::Textbook, window, ..GlrConfig::default() }.fit(&split, &split)?;
@@ -93,6 +92,8 @@ impl Test {
 /// `S = diag σ²`, and its labels.
 struct Flight {
     family: Family,
+    /// Index of `family` in [`Family::ALL`].
+    family_idx: usize,
     series: ResidueSeries,
     attacked: Vec<bool>,
     dt_s: f64,
@@ -101,25 +102,19 @@ struct Flight {
 /// Per-fix counts of alarms against labels, and alarm events on clean fixes.
 #[derive(Default, Clone, Copy)]
 struct Counts {
-    tp: usize,
-    fp: usize,
-    fn_: usize,
+    confusion: Confusion,
+    /// Maximal runs of alarmed clean fixes (decision 060).
     events: usize,
-    /// Events that continue an alarm raised during an attack (decision 060 counts them).
+    /// Events that continue an alarm raised during an attack (decision 060 counts them too).
     tails: usize,
     clean_s: f64,
 }
 
 impl Counts {
-    fn add(&mut self, alarms: impl Iterator<Item = bool>, attacked: &[bool], dt_s: f64) {
+    fn add(&mut self, alarms: &[bool], attacked: &[bool], dt_s: f64) {
+        self.confusion.add(Confusion::count(alarms, attacked));
         let (mut in_event, mut alarmed_attack) = (false, false);
-        for (a, &y) in alarms.zip(attacked) {
-            match (a, y) {
-                (true, true) => self.tp += 1,
-                (true, false) => self.fp += 1,
-                (false, true) => self.fn_ += 1,
-                (false, false) => {}
-            }
+        for (&a, &y) in alarms.iter().zip(attacked) {
             if !y {
                 self.clean_s += dt_s;
                 if a && !in_event {
@@ -132,10 +127,8 @@ impl Counts {
         }
     }
 
-    #[allow(clippy::cast_precision_loss)]
     fn f1(&self) -> f64 {
-        let denom = 2 * self.tp + self.fp + self.fn_;
-        if denom == 0 { 0.0 } else { 2.0 * self.tp as f64 / denom as f64 }
+        self.confusion.f1()
     }
 
     #[allow(clippy::cast_precision_loss)]
@@ -152,7 +145,7 @@ impl Counts {
 /// A test's chosen window and threshold.
 #[derive(Clone, Copy)]
 struct Setting {
-    window: usize,
+    window: Option<usize>,
     threshold: f64,
 }
 
@@ -161,7 +154,7 @@ struct Setting {
 fn choose(test: Test, valid: &[Flight]) -> Result<[Option<Setting>; 2]> {
     let mut best: Option<(f64, Setting)> = None;
     let mut quiet: Option<(f64, Setting)> = None;
-    for &window in test.windows() {
+    for window in test.windows() {
         let stats: Vec<Vec<f64>> = valid.iter().map(|f| test.statistic(f, window)).collect::<Result<_>>()?;
         let mut clean: Vec<f64> = stats
             .iter()
@@ -184,7 +177,8 @@ fn choose(test: Test, valid: &[Flight]) -> Result<[Option<Setting>; 2]> {
         for threshold in candidates {
             let mut c = Counts::default();
             for (s, f) in stats.iter().zip(valid) {
-                c.add(s.iter().map(|v| *v > threshold), &f.attacked, f.dt_s);
+                let alarms: Vec<bool> = s.iter().map(|v| *v > threshold).collect();
+                c.add(&alarms, &f.attacked, f.dt_s);
             }
             let setting = Setting { window, threshold };
             if best.is_none_or(|(f1, _)| c.f1() > f1) {
@@ -201,7 +195,7 @@ fn choose(test: Test, valid: &[Flight]) -> Result<[Option<Setting>; 2]> {
 /// A unit's flights of one split, every family.
 fn flights(unit: LoopUnit, split: Split, opts: &Options) -> Result<Vec<Flight>> {
     let mut out = Vec::new();
-    for family in Family::ALL {
+    for (family_idx, family) in Family::ALL.into_iter().enumerate() {
         let cfg = family_dataset(unit, family, opts).check().with_context(|| {
             format!("model {} {} seed {} {}", unit.model.roman(), unit.noise.name(), unit.seed, family.name())
         })?;
@@ -230,7 +224,7 @@ fn flights(unit: LoopUnit, split: Split, opts: &Options) -> Result<Vec<Flight>> 
             let s = std::iter::repeat_n(s_k.iter().copied().collect::<Vec<f64>>(), t.len()).flatten().collect();
             let channels = GPS_CHANNELS.iter().map(|c| (*c).to_owned()).collect();
             let series = ResidueSeries::from_flat(t, channels, r, s)?;
-            out.push(Flight { family, series, attacked: sent.labels, dt_s });
+            out.push(Flight { family, family_idx, series, attacked: sent.labels, dt_s });
         }
     }
     Ok(out)
@@ -250,9 +244,9 @@ fn unit_counts(unit: LoopUnit, opts: &Options) -> Result<Vec<[Option<Vec<Counts>
             let mut counts = vec![Counts::default(); Family::ALL.len() + 1];
             for f in &test {
                 let alarms = t.statistic(f, s.window)?;
-                let family = Family::ALL.iter().position(|x| *x == f.family).unwrap_or(0);
-                for c in [family, Family::ALL.len()] {
-                    counts[c].add(alarms.iter().map(|v| *v > s.threshold), &f.attacked, f.dt_s);
+                let alarms: Vec<bool> = alarms.iter().map(|v| *v > s.threshold).collect();
+                for c in [f.family_idx, Family::ALL.len()] {
+                    counts[c].add(&alarms, &f.attacked, f.dt_s);
                 }
             }
             *rule = Some(counts);

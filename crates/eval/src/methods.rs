@@ -33,7 +33,7 @@ pub enum MethodGroup {
     LearningBased,
     /// QUADFormer.
     Ours,
-    /// Methods that are not rows of the paper (chi-squared, PX4-style gate).
+    /// Methods that are not rows of the paper (chi-squared, PX4-style gate, GLR drift test).
     Extra,
 }
 

@@ -4,8 +4,8 @@
 //!
 //! Layout: rows are the methods of the registry ([`crate::methods`]) in its order, grouped
 //! Traditional (CUSUM, SPRT, BHT) / Learning-based (SVM, CNN, LSTM) / Ours (QUADFormer), then
-//! the methods that are no row of the paper (chi-squared, the PX4-style gate) in a separate
-//! "Extra" group; columns are noise (exponential, Laplace) × attack
+//! the methods that are no row of the paper (chi-squared, the PX4-style gate, the GLR drift
+//! test) in a separate "Extra" group; columns are noise (exponential, Laplace) × attack
 //! (I, II) × per-step precision, recall, F1 (eq:precision, eq:recall, eq:F1); each cell is
 //! `mean ± std` over seeds with the sample standard deviation (divisor `n − 1`). The paper's
 //! published numbers follow in a separate, labelled block, for comparison only.

@@ -360,7 +360,7 @@ fn train_help() {
             Usage: quadformer train [OPTIONS] --method <METHOD> --train <DIR> --valid <DIR> --out <MODEL_DIR>
 
             Options:
-                  --method <METHOD>     Method: quadformer, cusum, sprt, bht, chi2, px4-gate, svm, cnn or lstm
+                  --method <METHOD>     Method: quadformer, cusum, sprt, bht, chi2, px4-gate, glr, svm, cnn or lstm
                   --train <DIR>         Directory of training residue CSVs (every `*.csv`; labels optional)
                   --valid <DIR>         Directory of validation residue CSVs (every `*.csv`; labels required): thresholds are chosen here
                   --out <MODEL_DIR>     Output model directory (must not exist or be empty, unless `--force`)
@@ -371,7 +371,7 @@ fn train_help() {
               -h, --help                Print help
               -V, --version             Print version
 
-            Model directory: model.json and the fitted state, which `quadformer detect` loads without fitting: detector.json (the fitted parameters of cusum, sprt, bht, chi2, px4-gate and svm; the manifest of cnn and lstm, with detector.safetensors for their weights) or quadformer.json + quadformer.safetensors (the QUADFormer checkpoint). See docs/cli.md and decisions 081 and 110.
+            Model directory: model.json and the fitted state, which `quadformer detect` loads without fitting: detector.json (the fitted parameters of cusum, sprt, bht, chi2, px4-gate, glr and svm; the manifest of cnn and lstm, with detector.safetensors for their weights) or quadformer.json + quadformer.safetensors (the QUADFormer checkpoint). See docs/cli.md and decisions 081 and 110.
         "#]],
     );
 }

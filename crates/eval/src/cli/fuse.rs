@@ -11,7 +11,7 @@
 //! metrics) say what it did.
 //!
 //! Detectors (decision 090): `nis` is resilient-fusion's χ²₃ NIS gate on the GPS innovation
-//! (no fitting); `chi2`, `cusum` and `quadformer` are fitted by
+//! (no fitting); `chi2`, `cusum`, `glr` and `quadformer` are fitted by
 //! [`crate::scenarios::fit_on_quick_cell`] or loaded from a model directory (`--model`, written
 //! by `quadformer train`), whose training channels become the fusion's detector channels. Batch
 //! detectors run through [`ekf_residue::Detector::online`]; resilient-fusion stays candle-free.

@@ -65,12 +65,12 @@ fn check_enough_data(
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Model directory: model.json and the fitted state, which `quadformer detect` loads without fitting: \
-detector.json (the fitted parameters of cusum, sprt, bht, chi2, px4-gate and svm; the manifest of cnn and lstm, with \
+detector.json (the fitted parameters of cusum, sprt, bht, chi2, px4-gate, glr and svm; the manifest of cnn and lstm, with \
 detector.safetensors for their weights) or quadformer.json + quadformer.safetensors (the QUADFormer checkpoint). See \
 docs/cli.md and decisions 081 and 110."
 )]
 pub struct Args {
-    /// Method: quadformer, cusum, sprt, bht, chi2, px4-gate, svm, cnn or lstm.
+    /// Method: quadformer, cusum, sprt, bht, chi2, px4-gate, glr, svm, cnn or lstm.
     #[arg(long, value_parser = parse_method)]
     pub method: Method,
     /// Directory of training residue CSVs (every `*.csv`; labels optional).
