@@ -171,20 +171,9 @@ impl GlrState {
             self.u.drain(..stale);
             self.e.drain(..stale);
         }
-        let n = glr.gps_idx.len();
         // The newest fix unclipped: a gross offset alarms at its first fix.
         let newest = self.u.back().map_or(0.0, DVector::norm_squared);
-        let (mut best, mut sum, mut weighted, mut sq) = (newest, DVector::zeros(n), DVector::zeros(n), 0.0);
-        for (m, e) in self.e.iter().rev().take(window).enumerate() {
-            // Onset m + 1 fixes back: `weighted` = Σ (m + 1 − i) e_{k−i} grows by `sum`.
-            sum += e;
-            weighted += &sum;
-            #[allow(clippy::cast_precision_loss)]
-            let mf = (m + 1) as f64;
-            sq += mf * mf;
-            best = best.max(sum.norm_squared() / mf).max(weighted.norm_squared() / sq);
-        }
-        best
+        newest.max(offset_glr(self.e.iter().rev().take(window), glr.gps_idx.len()))
     }
 
     /// The end test of the module doc on the newest innovations.
@@ -205,6 +194,22 @@ impl GlrState {
         let leaves_level = (&newest - level * r).norm_squared() / (r + r * r / n_level) > self.end_bound;
         fits_zero && leaves_level
     }
+}
+
+/// `max(bias_k, ramp_k)` of the module doc over the innovations `e`, newest first (as many as
+/// the onsets looked back to), each of `n` channels.
+fn offset_glr<'a>(newest_first: impl Iterator<Item = &'a DVector<f64>>, n: usize) -> f64 {
+    let (mut best, mut sum, mut weighted, mut sq) = (0.0_f64, DVector::zeros(n), DVector::zeros(n), 0.0);
+    for (m, e) in newest_first.enumerate() {
+        // Onset m + 1 fixes back: `weighted` = Σ (m + 1 − i) e_{k−i} grows by `sum`.
+        sum += e;
+        weighted += &sum;
+        #[allow(clippy::cast_precision_loss)]
+        let mf = (m + 1) as f64;
+        sq += mf * mf;
+        best = best.max(sum.norm_squared() / mf).max(weighted.norm_squared() / sq);
+    }
+    best
 }
 
 /// The GPS innovation of a step whitened by the Cholesky factor of its covariance block, or
@@ -335,5 +340,42 @@ impl OnlineDetector for GlrOnline<'_> {
 
     fn reset(&mut self) {
         self.state = GlrState::new(self.glr.window, self.glr.gps_idx.len());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::DVector;
+    use proptest::prelude::*;
+
+    use super::offset_glr;
+
+    /// `max(bias_k, ramp_k)` written out: for every onset `m`, the least-squares offset of
+    /// each model and twice its log-likelihood ratio against none, `‖Σ a_i e_i‖² / Σ a_i²`
+    /// with the regressor `a_i = 1` (constant) or `a_i = m − i` (ramp from zero).
+    fn brute_force(e: &[DVector<f64>]) -> f64 {
+        let mut best = 0.0_f64;
+        for m in 1..=e.len() {
+            for ramp in [false, true] {
+                let a = |i: usize| if ramp { (m - i) as f64 } else { 1.0 };
+                let num = (0..m).fold(DVector::zeros(e[0].len()), |acc, i| acc + &e[i] * a(i));
+                let den: f64 = (0..m).map(|i| a(i) * a(i)).sum();
+                best = best.max(num.norm_squared() / den);
+            }
+        }
+        best
+    }
+
+    proptest! {
+        /// The recursion equals the two likelihood ratios written out, over every onset.
+        #[test]
+        fn the_recursion_is_the_likelihood_ratio_over_every_onset(
+            values in prop::collection::vec(-5.0_f64..5.0, 3..=90),
+        ) {
+            let e: Vec<DVector<f64>> = values.chunks_exact(3).map(DVector::from_column_slice).collect();
+            let fast = offset_glr(e.iter(), 3);
+            let slow = brute_force(&e);
+            prop_assert!((fast - slow).abs() <= 1e-9 * slow.max(1.0), "{fast} vs {slow}");
+        }
     }
 }
