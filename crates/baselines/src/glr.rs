@@ -46,8 +46,9 @@ use crate::error::{BaselineError, Result, step_dim_error};
 use crate::stats::chi2_quantile;
 
 /// Newest innovations the end test judges: one, so an alarm clears at the first fix after its
-/// attack (on validation flights 3 fixes kept an alarm past every attack's end, an alarm event
-/// decision 060 counts as false; docs/decisions/093-glr-drift-test.md).
+/// attack; judging 2 or 3 kept alarms a fix or two past nearly every attack, each an alarm
+/// event decision 060 counts as false (chosen on validation flights,
+/// docs/decisions/093-glr-drift-test.md).
 const END_FIXES: usize = 1;
 
 /// Innovations before them whose mean is the offset's level.
