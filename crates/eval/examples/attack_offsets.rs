@@ -14,39 +14,18 @@
 //! the attack plans are drawn and injected into the clean fixes (`attack_inject::inject`);
 //! nothing is flown or fitted, so it takes under a minute.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use attack_inject::inject;
-use eval::cell::Cell;
 use eval::closed_loop::{Family, family_dataset, units};
 use eval::dataset::{Split, plan_split};
-use eval::reproduce::{MatrixConfig, Options, Stages};
+
+mod common;
 
 /// Offsets, metres, at which the shares are taken.
 const LEVELS_M: [f64; 4] = [0.5, 1.0, 2.0, 3.0];
 
 fn main() -> Result<()> {
-    let (mut seeds, mut quick) = (3u64, false);
-    let mut args = std::env::args().skip(1);
-    while let Some(flag) = args.next() {
-        match flag.as_str() {
-            "--seeds" => {
-                let v = args.next().context("--seeds needs a value")?;
-                seeds = v.parse().with_context(|| format!("--seeds {v}"))?;
-            }
-            "--quick" => quick = true,
-            other => bail!("unknown option {other}; usage: attack_offsets [--seeds N] [--quick]"),
-        }
-    }
-    let opts = Options {
-        config: if quick { MatrixConfig::quick() } else { MatrixConfig::default() },
-        quick,
-        seeds,
-        cells: Cell::table_cells(),
-        methods: vec![],
-        out: "results".into(),
-        progress: false,
-        stages: Stages::ClosedLoop,
-    };
+    let opts = common::loop_options("attack_offsets")?;
     print!("| family | attacked fixes |");
     for l in LEVELS_M {
         print!(" ≥ {l} m: share / F1 |");

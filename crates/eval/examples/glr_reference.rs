@@ -35,12 +35,13 @@ use baselines::{GlrConfig, Tuning};
 use detection_metrics::Confusion;
 use ekf_residue::residues::GPS_CHANNELS;
 use ekf_residue::{Detector, Fit, LabelledResidues, LabelledSeries, ResidueSeries};
-use eval::cell::Cell;
 use eval::closed_loop::{Family, LoopUnit, family_dataset, units};
 use eval::dataset::{Split, plan_split};
-use eval::reproduce::{MatrixConfig, Options, Stages};
+use eval::reproduce::Options;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
+
+mod common;
 
 /// The loop's target of alarm events per clean minute.
 const EVENT_BUDGET_PER_MIN: f64 = 0.5;
@@ -73,18 +74,16 @@ impl Test {
         }
     }
 
-    /// The statistic of every fix of a flight; the GLR test looks back at most `window` fixes
-    /// for the onset.
-    fn statistic(self, flight: &Flight, window: Option<usize>) -> Result<Vec<f64>> {
-        match (self, window) {
-            (Self::Chi2, _) | (Self::Glr, None) => Ok(flight.series.nis().to_vec()),
-            (Self::Glr, Some(window)) => {
-                // The textbook fit only reads the channels; the window is the one asked for.
-                let split = LabelledResidues::new(vec![LabelledSeries::new(flight.series.clone(), None)?])?;
-                let glr = GlrConfig { tuning: Tuning::Textbook, window, ..GlrConfig::default() }.fit(&split, &split)?;
-                Ok(glr.score(&flight.series)?)
-            }
-        }
+    /// The statistic of every fix of each flight; the GLR test looks back at most `window`
+    /// fixes for the onset.
+    fn statistics(self, flights: &[Flight], window: Option<usize>) -> Result<Vec<Vec<f64>>> {
+        let (Self::Glr, Some(window), Some(first)) = (self, window, flights.first()) else {
+            return Ok(flights.iter().map(|f| f.series.nis().to_vec()).collect());
+        };
+        // The textbook fit only reads the channels; the window is the one asked for.
+        let split = LabelledResidues::new(vec![LabelledSeries::new(first.series.clone(), None)?])?;
+        let glr = GlrConfig { tuning: Tuning::Textbook, window, ..GlrConfig::default() }.fit(&split, &split)?;
+        Ok(flights.iter().map(|f| glr.score(&f.series)).collect::<Result<_, _>>()?)
     }
 }
 
@@ -155,7 +154,7 @@ fn choose(test: Test, valid: &[Flight]) -> Result<[Option<Setting>; 2]> {
     let mut best: Option<(f64, Setting)> = None;
     let mut quiet: Option<(f64, Setting)> = None;
     for window in test.windows() {
-        let stats: Vec<Vec<f64>> = valid.iter().map(|f| test.statistic(f, window)).collect::<Result<_>>()?;
+        let stats = test.statistics(valid, window)?;
         let mut clean: Vec<f64> = stats
             .iter()
             .zip(valid)
@@ -239,12 +238,20 @@ fn unit_counts(unit: LoopUnit, opts: &Options) -> Result<Vec<[Option<Vec<Counts>
     let mut out = Vec::new();
     for t in Test::ALL {
         let mut rules = [None, None];
+        // The test flights' statistics per window, computed once for both rules.
+        let mut stats: Vec<(Option<usize>, Vec<Vec<f64>>)> = Vec::new();
         for (rule, setting) in rules.iter_mut().zip(choose(t, &valid)?) {
             let Some(s) = setting else { continue };
+            let at = match stats.iter().position(|(w, _)| *w == s.window) {
+                Some(i) => i,
+                None => {
+                    stats.push((s.window, t.statistics(&test, s.window)?));
+                    stats.len() - 1
+                }
+            };
             let mut counts = vec![Counts::default(); Family::ALL.len() + 1];
-            for f in &test {
-                let alarms = t.statistic(f, s.window)?;
-                let alarms: Vec<bool> = alarms.iter().map(|v| *v > s.threshold).collect();
+            for (f, stat) in test.iter().zip(&stats[at].1) {
+                let alarms: Vec<bool> = stat.iter().map(|v| *v > s.threshold).collect();
                 for c in [f.family_idx, Family::ALL.len()] {
                     counts[c].add(&alarms, &f.attacked, f.dt_s);
                 }
@@ -257,28 +264,7 @@ fn unit_counts(unit: LoopUnit, opts: &Options) -> Result<Vec<[Option<Vec<Counts>
 }
 
 fn main() -> Result<()> {
-    let (mut seeds, mut quick) = (3u64, false);
-    let mut args = std::env::args().skip(1);
-    while let Some(flag) = args.next() {
-        match flag.as_str() {
-            "--seeds" => {
-                let v = args.next().context("--seeds needs a value")?;
-                seeds = v.parse().with_context(|| format!("--seeds {v}"))?;
-            }
-            "--quick" => quick = true,
-            other => bail!("unknown option {other}; usage: glr_reference [--seeds N] [--quick]"),
-        }
-    }
-    let opts = Options {
-        config: if quick { MatrixConfig::quick() } else { MatrixConfig::default() },
-        quick,
-        seeds,
-        cells: Cell::table_cells(),
-        methods: vec![],
-        out: "results".into(),
-        progress: false,
-        stages: Stages::ClosedLoop,
-    };
+    let opts = common::loop_options("glr_reference")?;
     let units = units(&opts);
     // Per unit, per test, per rule: test counts per family and over every family.
     let per_unit: Vec<Vec<[Option<Vec<Counts>>; 2]>> =
