@@ -139,6 +139,8 @@ impl Glr {
 struct GlrState {
     u: VecDeque<DVector<f64>>,
     e: VecDeque<DVector<f64>>,
+    /// Longest onset looked back to, fixes.
+    window: usize,
     capacity: usize,
     /// The χ²_n quantile of the end test.
     end_bound: f64,
@@ -151,11 +153,12 @@ impl GlrState {
         // test would never fire.
         #[allow(clippy::cast_precision_loss)]
         let end_bound = chi2_quantile(n_gps as f64, END_QUANTILE).unwrap_or(f64::INFINITY);
-        Self { u: VecDeque::with_capacity(capacity + 1), e: VecDeque::with_capacity(capacity + 1), capacity, end_bound }
+        let (u, e) = (VecDeque::with_capacity(capacity + 1), VecDeque::with_capacity(capacity + 1));
+        Self { u, e, window, capacity, end_bound }
     }
 
     /// Adds the step's innovation and returns `g_k`.
-    fn step(&mut self, glr: &Glr, window: usize, r_k: &[f64], s_k: &[f64]) -> f64 {
+    fn step(&mut self, glr: &Glr, r_k: &[f64], s_k: &[f64]) -> f64 {
         let Some(u) = whitened(&glr.gps_idx, r_k, s_k) else {
             // A non-finite innovation or covariance alarms (as PX4 rejects a non-finite ratio)
             // and is not kept.
@@ -176,7 +179,7 @@ impl GlrState {
         }
         // The newest fix unclipped: a gross offset alarms at its first fix.
         let newest = self.u.back().map_or(0.0, DVector::norm_squared);
-        newest.max(offset_glr(self.e.iter().rev().take(window), glr.gps_idx.len()))
+        newest.max(offset_glr(self.e.iter().rev().take(self.window), glr.gps_idx.len()))
     }
 
     /// The end test of the module doc on the newest innovations.
@@ -229,11 +232,13 @@ fn whitened(gps_idx: &[usize], r_k: &[f64], s_k: &[f64]) -> Option<DVector<f64>>
     let u = l.l().solve_lower_triangular(&nu)?;
     u.iter().all(|x| x.is_finite()).then_some(u)
 }
+
+/// `g_k` of every step of `series`, looking back at most `window` fixes, from a fresh state.
 fn glr_run(glr: &Glr, window: usize, series: &ResidueSeries, mut sink: impl FnMut(f64)) {
     let m = series.dim();
     let mut st = GlrState::new(window, glr.gps_idx.len());
     for (r_k, s_k) in series.r().chunks_exact(m).zip(series.s().chunks_exact(m * m)) {
-        sink(st.step(glr, window, r_k, s_k));
+        sink(st.step(glr, r_k, s_k));
     }
 }
 
@@ -337,7 +342,7 @@ impl OnlineDetector for GlrOnline<'_> {
         if step.dim() != m || step.s_k.len() != m * m {
             return Err(step_dim_error(m, step.dim()));
         }
-        let score = self.state.step(self.glr, self.glr.window, step.r_k, step.s_k);
+        let score = self.state.step(self.glr, step.r_k, step.s_k);
         Ok(OnlineDecision { score, alarm: score > self.glr.threshold })
     }
 
