@@ -21,11 +21,8 @@
 //! offset alarms at its first fix (the one-fix χ² test), while the sums over several fixes read
 //! the clipped `e` and one heavy-tailed sample cannot hold them up.
 //!
-//! **End test:** when the sum of the newest `END_FIXES` whitened innovations fits no offset and
-//! departs from the mean level of the `LEVEL_FIXES` before them, both at the χ²_n 0.999
-//! quantile, the offset has ended and all but the newest `END_FIXES` innovations leave the
-//! memory, so later sums start after the end; without it an alarm would outlast its attack by
-//! up to `M` fixes. An onset or a growing drift moves away from zero and does not count.
+//! The sums and their end test (an ended offset leaves the memory, so an alarm does not outlast
+//! its attack by up to `M` fixes) are [`ekf_residue::drift`]'s [`DriftMemory`].
 //!
 //! Validation setting: the window `M` from a grid and the threshold `h` maximising F1.
 //! Textbook setting: `M` = 30 fixes and `h` the χ²_n quantile of `1 − far / (2M + 1)`, a union
@@ -33,8 +30,7 @@
 //!
 //! Only the GPS channels (names starting with `gps_channel_prefix`) are read.
 
-use std::collections::VecDeque;
-
+use ekf_residue::drift::DriftMemory;
 use ekf_residue::{
     DetectError, Detector, Fit, LabelledResidues, OnlineDecision, OnlineDetector, ResidueSeries, ResidueStep,
 };
@@ -44,18 +40,6 @@ use serde::{Deserialize, Serialize};
 use crate::common::{Tuning, fit_channels, gps_indices, labelled_valid};
 use crate::error::{BaselineError, Result, step_dim_error};
 use crate::stats::chi2_quantile;
-
-/// Newest innovations the end test judges: one, so an alarm clears at the first fix after its
-/// attack; judging 2 or 3 kept alarms a fix or two past nearly every attack, each an alarm
-/// event decision 060 counts as false (chosen on validation flights,
-/// docs/decisions/093-glr-drift-test.md).
-const END_FIXES: usize = 1;
-
-/// Innovations before them whose mean is the offset's level.
-const LEVEL_FIXES: usize = 10;
-
-/// Quantile of χ²_n at which both halves of the end test reject.
-const END_QUANTILE: f64 = 0.999;
 
 /// Hyper-parameters of the GLR drift test.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -133,28 +117,13 @@ impl Glr {
     }
 }
 
-/// The recursion's memory: the newest whitened innovations `u` and their clipped form `e`,
-/// newest last.
+/// The recursion's memory over the GPS innovations.
 #[derive(Debug, Clone)]
-struct GlrState {
-    u: VecDeque<DVector<f64>>,
-    e: VecDeque<DVector<f64>>,
-    /// Longest onset looked back to, fixes.
-    window: usize,
-    capacity: usize,
-    /// The χ²_n quantile of the end test.
-    end_bound: f64,
-}
+struct GlrState(DriftMemory);
 
 impl GlrState {
-    fn new(window: usize, n_gps: usize) -> Self {
-        let capacity = window.max(END_FIXES + LEVEL_FIXES);
-        // `n_gps ≥ 1` (checked on fit and load), so the quantile exists; without it the end
-        // test would never fire.
-        #[allow(clippy::cast_precision_loss)]
-        let end_bound = chi2_quantile(n_gps as f64, END_QUANTILE).unwrap_or(f64::INFINITY);
-        let (u, e) = (VecDeque::with_capacity(capacity + 1), VecDeque::with_capacity(capacity + 1));
-        Self { u, e, window, capacity, end_bound }
+    fn new(glr: &Glr, window: usize) -> Self {
+        Self(DriftMemory::new(window, glr.gps_idx.len(), glr.huber_c))
     }
 
     /// Adds the step's innovation and returns `g_k`.
@@ -164,58 +133,10 @@ impl GlrState {
             // and is not kept.
             return f64::INFINITY;
         };
-        let e = u.map(|x| x.clamp(-glr.huber_c, glr.huber_c));
-        if self.u.len() == self.capacity {
-            self.u.pop_front();
-            self.e.pop_front();
-        }
-        self.u.push_back(u);
-        self.e.push_back(e);
-        if self.ended() {
-            // The ended offset's fixes leave the memory: later onsets start after it.
-            let stale = self.u.len() - END_FIXES;
-            self.u.drain(..stale);
-            self.e.drain(..stale);
-        }
         // The newest fix unclipped: a gross offset alarms at its first fix.
-        let newest = self.u.back().map_or(0.0, DVector::norm_squared);
-        newest.max(offset_glr(self.e.iter().rev().take(self.window), glr.gps_idx.len()))
+        let newest = u.norm_squared();
+        newest.max(self.0.push(u))
     }
-
-    /// The end test of the module doc on the newest innovations.
-    fn ended(&self) -> bool {
-        let len = self.u.len();
-        if len < END_FIXES + LEVEL_FIXES {
-            return false;
-        }
-        let sum_of =
-            |range: std::ops::Range<usize>| self.u.range(range).fold(DVector::zeros(self.u[0].len()), |acc, u| acc + u);
-        let newest = sum_of(len - END_FIXES..len);
-        #[allow(clippy::cast_precision_loss)]
-        let (r, n_level) = (END_FIXES as f64, LEVEL_FIXES as f64);
-        let level = sum_of(len - END_FIXES - LEVEL_FIXES..len - END_FIXES) / n_level;
-        // Per axis, the newest sum has variance r under no offset, and its departure from r
-        // times the level r + r²/n_level under the level.
-        let fits_zero = newest.norm_squared() / r <= self.end_bound;
-        let leaves_level = (&newest - level * r).norm_squared() / (r + r * r / n_level) > self.end_bound;
-        fits_zero && leaves_level
-    }
-}
-
-/// `max(bias_k, ramp_k)` of the module doc over the innovations `e`, newest first (as many as
-/// the onsets looked back to), each of `n` channels.
-fn offset_glr<'a>(newest_first: impl Iterator<Item = &'a DVector<f64>>, n: usize) -> f64 {
-    let (mut best, mut sum, mut weighted, mut sq) = (0.0_f64, DVector::zeros(n), DVector::zeros(n), 0.0);
-    for (m, e) in newest_first.enumerate() {
-        // Onset m + 1 fixes back: `weighted` = Σ (m + 1 − i) e_{k−i} grows by `sum`.
-        sum += e;
-        weighted += &sum;
-        #[allow(clippy::cast_precision_loss)]
-        let mf = (m + 1) as f64;
-        sq += mf * mf;
-        best = best.max(sum.norm_squared() / mf).max(weighted.norm_squared() / sq);
-    }
-    best
 }
 
 /// The GPS innovation of a step whitened by the Cholesky factor of its covariance block, or
@@ -236,7 +157,7 @@ fn whitened(gps_idx: &[usize], r_k: &[f64], s_k: &[f64]) -> Option<DVector<f64>>
 /// `g_k` of every step of `series`, looking back at most `window` fixes, from a fresh state.
 fn glr_run(glr: &Glr, window: usize, series: &ResidueSeries, mut sink: impl FnMut(f64)) {
     let m = series.dim();
-    let mut st = GlrState::new(window, glr.gps_idx.len());
+    let mut st = GlrState::new(glr, window);
     for (r_k, s_k) in series.r().chunks_exact(m).zip(series.s().chunks_exact(m * m)) {
         sink(st.step(glr, r_k, s_k));
     }
@@ -325,7 +246,7 @@ impl Detector for Glr {
     }
 
     fn online(&self) -> Box<dyn OnlineDetector + '_> {
-        Box::new(GlrOnline { glr: self, state: GlrState::new(self.window, self.gps_idx.len()) })
+        Box::new(GlrOnline { glr: self, state: GlrState::new(self, self.window) })
     }
 }
 
@@ -347,43 +268,6 @@ impl OnlineDetector for GlrOnline<'_> {
     }
 
     fn reset(&mut self) {
-        self.state = GlrState::new(self.glr.window, self.glr.gps_idx.len());
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use nalgebra::DVector;
-    use proptest::prelude::*;
-
-    use super::offset_glr;
-
-    /// `max(bias_k, ramp_k)` written out: for every onset `m`, the least-squares offset of
-    /// each model and twice its log-likelihood ratio against none, `‖Σ a_i e_i‖² / Σ a_i²`
-    /// with the regressor `a_i = 1` (constant) or `a_i = m − i` (ramp from zero).
-    fn brute_force(e: &[DVector<f64>]) -> f64 {
-        let mut best = 0.0_f64;
-        for m in 1..=e.len() {
-            for ramp in [false, true] {
-                let a = |i: usize| if ramp { (m - i) as f64 } else { 1.0 };
-                let num = (0..m).fold(DVector::zeros(e[0].len()), |acc, i| acc + &e[i] * a(i));
-                let den: f64 = (0..m).map(|i| a(i) * a(i)).sum();
-                best = best.max(num.norm_squared() / den);
-            }
-        }
-        best
-    }
-
-    proptest! {
-        /// The recursion equals the two likelihood ratios written out, over every onset.
-        #[test]
-        fn the_recursion_is_the_likelihood_ratio_over_every_onset(
-            values in prop::collection::vec(-5.0_f64..5.0, 3..=90),
-        ) {
-            let e: Vec<DVector<f64>> = values.chunks_exact(3).map(DVector::from_column_slice).collect();
-            let fast = offset_glr(e.iter(), 3);
-            let slow = brute_force(&e);
-            prop_assert!((fast - slow).abs() <= 1e-9 * slow.max(1.0), "{fast} vs {slow}");
-        }
+        self.state.0.clear();
     }
 }

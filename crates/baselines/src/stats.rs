@@ -3,96 +3,17 @@
 //! CCA 2016, and "Characterization of Model-Based Detectors for CPS Sensor Faults/Attacks",
 //! arXiv 1710.04407).
 //!
-//! Special functions follow Numerical Recipes (3rd ed., §6.1–6.2): Lanczos `ln Γ`, the
-//! regularised lower incomplete gamma `P(a, x)` by series below `a + 1` and by Lentz's continued
-//! fraction above. Accuracy is about 1e-12 relative, far below what a threshold needs.
+//! The χ² distribution itself lives with the filter's innovations ([`ekf_residue::chi2`]) and
+//! is re-exported here.
+
+use ekf_residue::chi2::bisect;
+pub use ekf_residue::chi2::{chi2_cdf, gamma_p, ln_gamma};
 
 use crate::error::{BaselineError, Result};
 
-/// `ln Γ(x)` for `x > 0` (Lanczos, g = 7, 9 terms).
-pub fn ln_gamma(x: f64) -> f64 {
-    const G: f64 = 7.0;
-    const COEF: [f64; 9] = [
-        0.999_999_999_999_809_9,
-        676.520_368_121_885_1,
-        -1_259.139_216_722_402_8,
-        771.323_428_777_653_1,
-        -176.615_029_162_140_6,
-        12.507_343_278_686_905,
-        -0.138_571_095_265_720_12,
-        9.984_369_578_019_572e-6,
-        1.505_632_735_149_311_6e-7,
-    ];
-    if x < 0.5 {
-        // Reflection: Γ(x)Γ(1−x) = π / sin(πx).
-        return (std::f64::consts::PI / (std::f64::consts::PI * x).sin()).ln() - ln_gamma(1.0 - x);
-    }
-    let x = x - 1.0;
-    let mut a = COEF[0];
-    let t = x + G + 0.5;
-    for (i, c) in COEF.iter().enumerate().skip(1) {
-        a += c / (x + i as f64);
-    }
-    0.5 * (2.0 * std::f64::consts::PI).ln() + (x + 0.5) * t.ln() - t + a.ln()
-}
-
-/// Regularised lower incomplete gamma `P(a, x) = γ(a, x) / Γ(a)` for `a > 0`, `x ≥ 0`.
-pub fn gamma_p(a: f64, x: f64) -> f64 {
-    if x <= 0.0 {
-        return 0.0;
-    }
-    if !x.is_finite() {
-        return 1.0;
-    }
-    let ln_pre = -x + a * x.ln() - ln_gamma(a);
-    if x < a + 1.0 {
-        // Series: P = e^{−x} x^a / Γ(a+1) Σ x^n / ((a+1)…(a+n)).
-        let (mut ap, mut sum, mut del) = (a, 1.0 / a, 1.0 / a);
-        for _ in 0..1000 {
-            ap += 1.0;
-            del *= x / ap;
-            sum += del;
-            if del.abs() < sum.abs() * 1e-15 {
-                break;
-            }
-        }
-        (sum.ln() + ln_pre).exp().clamp(0.0, 1.0)
-    } else {
-        // Continued fraction for Q = 1 − P (modified Lentz).
-        let tiny = 1e-300;
-        let mut b = x + 1.0 - a;
-        let mut c = 1.0 / tiny;
-        let mut d = 1.0 / b;
-        let mut h = d;
-        for i in 1..1000 {
-            let an = -(i as f64) * (i as f64 - a);
-            b += 2.0;
-            d = an * d + b;
-            if d.abs() < tiny {
-                d = tiny;
-            }
-            c = b + an / c;
-            if c.abs() < tiny {
-                c = tiny;
-            }
-            d = 1.0 / d;
-            let del = d * c;
-            h *= del;
-            if (del - 1.0).abs() < 1e-15 {
-                break;
-            }
-        }
-        (1.0 - (ln_pre.exp() * h)).clamp(0.0, 1.0)
-    }
-}
-
-/// CDF of the chi-squared distribution with `dof` degrees of freedom.
-pub fn chi2_cdf(dof: f64, x: f64) -> f64 {
-    gamma_p(0.5 * dof, 0.5 * x)
-}
-
-/// The `p`-quantile of chi-squared with `dof` degrees of freedom, e.g. `chi2_quantile(6.0,
-/// 0.99) ≈ 16.812` (the 1 % false-alarm threshold of a 6-channel NIS test).
+/// The `p`-quantile of chi-squared with `dof` degrees of freedom
+/// ([`ekf_residue::chi2::chi2_quantile`]), e.g. `chi2_quantile(6.0, 0.99) ≈ 16.812` (the 1 %
+/// false-alarm threshold of a 6-channel NIS test).
 ///
 /// # Errors
 /// [`BaselineError::Config`] unless `dof > 0` and `0 < p < 1`.
@@ -100,32 +21,14 @@ pub fn chi2_quantile(dof: f64, p: f64) -> Result<f64> {
     if !(dof > 0.0 && dof.is_finite()) {
         return Err(BaselineError::Config { field: "dof", msg: format!("must be positive, got {dof}") });
     }
-    if !(p > 0.0 && p < 1.0) {
-        return Err(BaselineError::Config { field: "p", msg: format!("must lie in (0, 1), got {p}") });
-    }
-    let mut hi = dof.max(1.0);
-    while chi2_cdf(dof, hi) < p {
-        hi *= 2.0;
-    }
-    Ok(bisect(|x| chi2_cdf(dof, x) - p, 0.0, hi))
+    ekf_residue::chi2::chi2_quantile(dof, p)
+        .ok_or_else(|| BaselineError::Config { field: "p", msg: format!("must lie in (0, 1), got {p}") })
 }
 
 /// Standard normal CDF `Φ(x)`, via `P(1/2, x²/2)`.
 pub fn normal_cdf(x: f64) -> f64 {
     let half = 0.5 * gamma_p(0.5, 0.5 * x * x);
     if x >= 0.0 { 0.5 + half } else { 0.5 - half }
-}
-
-/// Root of an increasing function on `[lo, hi]` by 200 bisection steps (exact to the last bit).
-fn bisect(f: impl Fn(f64) -> f64, mut lo: f64, mut hi: f64) -> f64 {
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if mid == lo || mid == hi {
-            break;
-        }
-        if f(mid) < 0.0 { lo = mid } else { hi = mid }
-    }
-    0.5 * (lo + hi)
 }
 
 /// Stationary alarm probability per step of the CUSUM `S_k = max(0, S_{k−1} + z_k − b)` with

@@ -15,6 +15,9 @@
 //!   VO + GPS updates.
 //! - [`align`]: alg:alg1 TimeStampAlignment (validation, time ordering, measurement groups).
 //! - [`geodetic`]: alg:alg1 CoordinateTransformation, WGS-84 geodetic → ECEF → local ENU.
+//! - [`chi2`]: the χ² distribution of NIS (CDF, quantile) for gates and thresholds.
+//! - [`drift`]: GLR evidence of a constant or growing offset in a whitened innovation sequence
+//!   ([`drift::DriftMemory`]), for drift tests and drift-aware detectors.
 //! - [`residues`]: alg:alg1 as one call, [`generate_residues`], and the step-by-step
 //!   [`Estimator`] (GPS fusion can be skipped and re-admitted) for the online layers.
 //!
@@ -54,7 +57,9 @@
 #![warn(missing_docs)]
 
 pub mod align;
+pub mod chi2;
 pub mod detector;
+pub mod drift;
 pub mod ekf;
 pub mod error;
 pub mod geodetic;
