@@ -135,7 +135,7 @@ impl GlrState {
         };
         // The newest fix unclipped: a gross offset alarms at its first fix.
         let newest = u.norm_squared();
-        newest.max(self.0.push(u))
+        newest.max(self.0.push(u.as_slice()))
     }
 }
 

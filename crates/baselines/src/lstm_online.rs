@@ -20,7 +20,7 @@
 
 use ekf_residue::{DetectError, OnlineDecision, OnlineDetector, ResidueStep, checked_step_nis};
 use nn_toolkit::matmul::{MatMut, MatRef, matmul};
-use nn_toolkit::{NnError, Normaliser};
+use nn_toolkit::{FeatureStream, NnError, Normaliser};
 
 use crate::lstm::cell_forward;
 
@@ -70,6 +70,8 @@ impl LstmWeights {
 /// Streaming LSTM (module docs).
 pub struct OnlineLstm<'a> {
     norm: &'a Normaliser,
+    /// The feature map over the steps seen.
+    stream: FeatureStream,
     w: LstmWeights,
     /// Window length `l`.
     l: usize,
@@ -116,6 +118,7 @@ impl<'a> OnlineLstm<'a> {
         let (l, h, g) = (l.max(1), w.h, 4 * w.h);
         Ok(Self {
             norm,
+            stream: norm.stream(),
             l,
             threshold,
             proj: vec![0.0; l * g],
@@ -141,7 +144,7 @@ impl<'a> OnlineLstm<'a> {
         let step_idx = self.n_seen.min(self.l - 1);
         let m = self.norm.channels.len();
         let nis = checked_step_nis(step_idx, m, self.t_last, step.t, step.r_k, step.s_k)?;
-        self.norm.apply(&ResidueStep { nis, ..*step }, &mut self.x);
+        self.norm.apply(&mut self.stream, &ResidueStep { nis, ..*step }, &mut self.x);
         Ok(())
     }
 
@@ -198,6 +201,7 @@ impl OnlineDetector for OnlineLstm<'_> {
 
     fn reset(&mut self) {
         (self.start, self.n_seen, self.t_last) = (0, 0, None);
+        self.stream.reset();
     }
 }
 
@@ -262,20 +266,21 @@ mod tests {
     #[test]
     fn streaming_logits_are_candle_logits_for_any_hidden_size() {
         let data = split(&[21]);
-        let norm = Normaliser::fit(&data, Features::default()).unwrap();
         let flight = SyntheticFlight::new(120, 22).generate(&[]).unwrap();
-        let (m, l) = (norm.dim(), 12);
-        for h in [8, 64, 65] {
+        for (features, h) in [(Features::default(), 8), (Features::default(), 64), (Features::WhitenedLogDrift, 65)] {
+            let norm = Normaliser::fit(&data, features).unwrap();
+            let (m, l) = (norm.dim(), 12);
             let varmap = VarMap::new();
             let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
             let net = LstmNet::new(m, h, vb).unwrap();
             init_vars_seeded(&varmap, 7).unwrap();
             let mut ours = OnlineLstm::new(net.weights().unwrap(), &norm, l, 0.0).unwrap();
             let mut window: Vec<f32> = Vec::new();
+            let mut stream = norm.stream();
             for (k, step) in flight.series().steps().enumerate() {
                 let score = ours.update(&step).unwrap().score;
                 let mut x = vec![0.0; m];
-                norm.apply(&step, &mut x);
+                norm.apply(&mut stream, &step, &mut x);
                 if window.is_empty() {
                     window = x.repeat(l);
                 } else {

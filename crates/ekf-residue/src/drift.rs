@@ -84,7 +84,8 @@ impl DriftMemory {
 
     /// Adds the newest whitened innovation `u` (finite, of the memory's `n` channels) and
     /// returns `max(bias_k, ramp_k)` of the module doc.
-    pub fn push(&mut self, u: DVector<f64>) -> f64 {
+    pub fn push(&mut self, u: &[f64]) -> f64 {
+        let u = DVector::from_column_slice(u);
         let e = u.map(|x| x.clamp(-self.huber_c, self.huber_c));
         if self.u.len() == self.capacity {
             self.u.pop_front();
@@ -182,11 +183,11 @@ mod tests {
         // A drift of 0.3 σ per step on one axis, noise-free: after 30 steps the ramp term is
         // ‖Σ j · 0.3 j‖² / Σ j² = 0.09 Σ j² over j ≤ 30, about 851.
         for i in 1..=30 {
-            g = mem.push(DVector::from_column_slice(&[0.3 * f64::from(i), 0.0, 0.0]));
+            g = mem.push(&[0.3 * f64::from(i), 0.0, 0.0]);
         }
         assert!((g - 0.09 * 9455.0).abs() < 1e-9, "{g}");
         // The offset ends: the newest innovation fits zero and leaves the level of 7.65 σ.
-        let after = mem.push(DVector::zeros(3));
+        let after = mem.push(&[0.0; 3]);
         assert!(after < 1e-12, "{after}");
     }
 }

@@ -1,5 +1,7 @@
 //! A CPU neural-network toolkit on candle, shared by QUADFormer (`quadformer-model`) and the
 //! CNN/LSTM baselines so that every learning method sees the same data and loop:
+//! - [`features`]: what a network reads per step ([`Features`]: raw, whitened by `S_k`, with
+//!   the GLR drift channel) and its step-by-step evaluation over a series ([`FeatureStream`]).
 //! - [`window`]: [`Normaliser`] (per-channel standardisation fitted on training data, saved
 //!   with a model), [`Windows`] (windows of `l` steps × `m` channels with per-step labels and a
 //!   label-known mask, configurable stride, [`Windows::batch`] → [`Batch`] tensors) and
@@ -59,6 +61,7 @@
 
 pub mod alloc;
 pub mod error;
+pub mod features;
 pub mod fused;
 pub mod init;
 pub mod layers;
@@ -71,6 +74,7 @@ pub mod window;
 
 pub use alloc::tune_allocator;
 pub use error::{NnError, Result};
+pub use features::{FeatureStream, Features};
 pub use init::init_vars_seeded;
 pub use train::{EpochStats, TrainConfig, TrainReport, TrainableModel, train, train_on};
-pub use window::{Batch, Features, Mix, Normaliser, SeriesWindows, WindowConfig, Windows};
+pub use window::{Batch, Mix, Normaliser, SeriesWindows, WindowConfig, Windows};

@@ -3,13 +3,8 @@
 //! Shared by QUADFormer and the CNN/LSTM baselines so that every learning method sees the same
 //! windows, normalisation and stitching.
 //!
-//! - [`Features`]: what a learning method reads at each step. By default the residue whitened
-//!   by what the filter already knows, `z_i = r_i / √(S_k)_ii`, plus the Mahalanobis norm
-//!   `√NIS_k` as one more channel, each compressed by `sign(x)·ln(1 + |x|)`. A correctly
-//!   configured change of sensor noise then leaves the input distribution unchanged
-//!   (docs/decisions/044-whitened-inputs.md). [`Features::Raw`] is `r_k` itself.
-//! - [`Normaliser`]: the feature map and the per-feature mean and standard deviation, fitted on
-//!   the training split only and saved with a model.
+//! - [`Normaliser`]: the feature map ([`Features`], `crate::features`) and the per-feature mean
+//!   and standard deviation, fitted on the training split only and saved with a model.
 //! - [`Windows`]: `n_win` windows of `l` steps × the normaliser's features (row-major `f32`), per-step
 //!   labels `y ∈ {0, 1}` and a label-known mask (1 where the flight is labelled and the step is
 //!   real, 0 for unlabelled flights and padding). Consecutive windows of a flight start `stride`
@@ -23,86 +18,10 @@ use ekf_residue::{LabelledResidues, ResidueSeries, ResidueStep};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
+pub use crate::features::{FeatureStream, Features};
 
 /// Smallest standard deviation treated as non-zero; a constant channel is divided by 1.
 const STD_FLOOR: f64 = 1e-12;
-
-/// What a learning method reads at each residue step (module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
-pub enum Features {
-    /// The innovation `r_k` as it is (m, rad); the only map before whitened inputs existed, so
-    /// a saved normaliser without the field reads as this.
-    Raw,
-    /// `r_i / √(S_k)_ii` per channel and `√NIS_k`: `m + 1` features, unit scale on clean steps.
-    Whitened,
-    /// [`Features::Whitened`] with every value compressed by `sign(x)·ln(1 + |x|)`, so that
-    /// attacks of tens of σ stay within a few units (the default).
-    #[default]
-    WhitenedLog,
-}
-
-impl Features {
-    /// Number of features for `m` residue channels.
-    pub fn dim(self, m: usize) -> usize {
-        match self {
-            Features::Raw => m,
-            Features::Whitened | Features::WhitenedLog => m + 1,
-        }
-    }
-
-    /// Writes the features of one step (`r_k`, row-major `S_k`, `NIS_k`) into `out`
-    /// (length [`Features::dim`]). A non-positive variance counts as 1.
-    pub fn compute(self, r_k: &[f64], s_k: &[f64], nis: f64, out: &mut [f64]) {
-        let m = r_k.len();
-        match self {
-            Features::Raw => {
-                for (o, r) in out.iter_mut().zip(r_k) {
-                    *o = *r;
-                }
-            }
-            Features::Whitened | Features::WhitenedLog => {
-                for (i, (o, r)) in out.iter_mut().zip(r_k).enumerate() {
-                    let var = s_k.get(i * m + i).copied().unwrap_or(1.0);
-                    *o = if var > 0.0 { r / var.sqrt() } else { *r };
-                }
-                self.finish_whitened(m, nis, out);
-            }
-        }
-    }
-
-    /// Whether the features of a step are a function of its whitened residue
-    /// `z_i = r_i/√(S_k)_ii` and `NIS_k` alone ([`Features::from_whitened`]), which is what
-    /// mixing two windows needs ([`Windows::batch_augmented`]).
-    pub fn is_whitened(self) -> bool {
-        self != Features::Raw
-    }
-
-    /// Writes the features of a step from its whitened residue `z` (`m` values) and `NIS_k`
-    /// into `out` (length [`Features::dim`]); the same as [`Features::compute`] for a step
-    /// with those values. Leaves `out` untouched for [`Features::Raw`], which is not a
-    /// function of them.
-    pub fn from_whitened(self, z: &[f64], nis: f64, out: &mut [f64]) {
-        if self.is_whitened() {
-            for (o, v) in out.iter_mut().zip(z) {
-                *o = *v;
-            }
-            self.finish_whitened(z.len(), nis, out);
-        }
-    }
-
-    /// `√NIS_k` after the `m` whitened channels, then the compression of
-    /// [`Features::WhitenedLog`].
-    fn finish_whitened(self, m: usize, nis: f64, out: &mut [f64]) {
-        if let Some(last) = out.get_mut(m) {
-            *last = nis.max(0.0).sqrt();
-        }
-        if self == Features::WhitenedLog {
-            for o in out.iter_mut() {
-                *o = o.signum() * o.abs().ln_1p();
-            }
-        }
-    }
-}
 
 /// Window length and stride.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -191,8 +110,9 @@ impl Normaliser {
         let mut sum_sq = vec![0.0; dim];
         let mut row = vec![0.0; dim];
         for f in train.flights() {
+            let mut stream = FeatureStream::new(features, train.channels());
             for step in f.series().steps() {
-                features.compute(step.r_k, step.s_k, step.nis, &mut row);
+                stream.compute(&step, &mut row);
                 for ((s, q), v) in sum.iter_mut().zip(&mut sum_sq).zip(&row) {
                     *s += v;
                     *q += v * v;
@@ -218,8 +138,14 @@ impl Normaliser {
         self.features.dim(self.channels.len())
     }
 
-    /// Writes the normalised features of step `step` into `out` (length [`Normaliser::dim`]).
-    pub fn apply(&self, step: &ResidueStep<'_>, out: &mut [f32]) {
+    /// A [`FeatureStream`] at the start of a series, for [`Normaliser::apply`].
+    pub fn stream(&self) -> FeatureStream {
+        FeatureStream::new(self.features, &self.channels)
+    }
+
+    /// Writes the normalised features of `step`, the next step of the series `stream` follows,
+    /// into `out` (length [`Normaliser::dim`]).
+    pub fn apply(&self, stream: &mut FeatureStream, step: &ResidueStep<'_>, out: &mut [f32]) {
         // A stack row for the usual widths keeps streaming decisions free of allocations.
         let mut stack = [0.0f64; 32];
         let mut heap = Vec::new();
@@ -229,7 +155,7 @@ impl Normaliser {
             heap.resize(self.dim(), 0.0);
             &mut heap
         };
-        self.features.compute(step.r_k, step.s_k, step.nis, row);
+        stream.compute(step, row);
         self.standardise(row, out);
     }
 
@@ -242,10 +168,10 @@ impl Normaliser {
 
     /// Where each normalised feature is mirrored by a sign flip of the residue, `r_k → −r_k`:
     /// `Some(c)` for a feature odd in `r_k` (mirrored value `2c − x`, with `c = −μ/σ` the image
-    /// of a zero residue), `None` for an even one (`√NIS`, unchanged).
+    /// of a zero residue), `None` for an even one (`√NIS`, drift; unchanged).
     pub fn mirror_centres(&self) -> Vec<Option<f32>> {
         let m = self.channels.len();
-        (0..self.dim()).map(|i| (i < m).then(|| (-self.mean[i] / self.std[i]) as f32)).collect()
+        (0..self.dim()).map(|i| self.features.is_odd(i, m).then(|| (-self.mean[i] / self.std[i]) as f32)).collect()
     }
 
     /// Checks that the fitted statistics match the feature map: one finite mean and one
@@ -359,7 +285,9 @@ pub struct Windows {
     mask: Vec<f32>,
     /// Per step, the whitened residue `z_i = r_i/√(S_k)_ii` and `u = L⁻¹ r_k` (`|u|² = NIS_k`),
     /// `2m` values, for training windows ([`Windows::for_training`]) of a whitened feature map
-    /// ([`Features::is_whitened`]); empty otherwise.
+    /// ([`Features::is_whitened`]); empty otherwise. Each window holds `ctx + l` rows: the
+    /// [`Features::context`] steps before it, then its own; rows before the flight's first
+    /// step and front padding are `NaN`.
     whitened: Vec<f32>,
     /// Whether [`Windows::push_series`] keeps `whitened` ([`Windows::for_training`]).
     mixable: bool,
@@ -456,21 +384,24 @@ impl Windows {
         if sw.starts.is_empty() {
             return Ok(sw);
         }
-        // Normalise the (front-padded) series once, then copy windows out of it.
+        // Normalise the (front-padded) series once, then copy windows out of it. Padding
+        // repeats the features of the first step.
         let n_pad = series.len() + sw.pad;
         let mut xs = vec![0.0f32; n_pad * m];
         let mut ys = vec![0.0f32; n_pad];
         let mut ms = vec![0.0f32; n_pad];
-        for k in 0..n_pad {
-            let src = k.saturating_sub(sw.pad);
-            if let Some(step) = series.step(src) {
-                norm.apply(&step, &mut xs[k * m..(k + 1) * m]);
-            }
-            if k >= sw.pad
-                && let Some(lab) = labels
-            {
-                ys[k] = if lab[src] { 1.0 } else { 0.0 };
-                ms[k] = 1.0;
+        let mut stream = norm.stream();
+        for (step, row) in series.steps().zip(xs[sw.pad * m..].chunks_exact_mut(m)) {
+            norm.apply(&mut stream, &step, row);
+        }
+        let (pad_rows, first) = xs.split_at_mut(sw.pad * m);
+        for row in pad_rows.chunks_exact_mut(m) {
+            row.copy_from_slice(&first[..m]);
+        }
+        if let Some(lab) = labels {
+            for (k, &a) in lab.iter().enumerate() {
+                ys[sw.pad + k] = if a { 1.0 } else { 0.0 };
+                ms[sw.pad + k] = 1.0;
             }
         }
         for &s0 in &sw.starts {
@@ -479,15 +410,14 @@ impl Windows {
             self.mask.extend_from_slice(&ms[s0..s0 + l]);
         }
         if self.mixable && norm.features.is_whitened() {
-            let w = 2 * series.dim();
-            let mut zu = vec![0.0f32; n_pad * w];
-            for (k, row) in zu.chunks_exact_mut(w).enumerate() {
-                if let Some(step) = series.step(k.saturating_sub(sw.pad)) {
-                    whitened_row(&step, row);
-                }
+            // `ctx` rows of NaN, the padding as NaN, then the steps.
+            let (w, ctx) = (2 * series.dim(), norm.features.context());
+            let mut zu = vec![f32::NAN; (ctx + n_pad) * w];
+            for (step, row) in series.steps().zip(zu[(ctx + sw.pad) * w..].chunks_exact_mut(w)) {
+                whitened_row(&step, row);
             }
             for &s0 in &sw.starts {
-                self.whitened.extend_from_slice(&zu[s0 * w..(s0 + l) * w]);
+                self.whitened.extend_from_slice(&zu[s0 * w..(s0 + ctx + l) * w]);
             }
         }
         Ok(sw)
@@ -496,8 +426,8 @@ impl Windows {
     /// Whether windows can be mixed ([`Windows::batch_augmented`]): training windows
     /// ([`Windows::for_training`]) of a whitened feature map.
     pub fn can_mix(&self) -> bool {
-        let m2 = self.norm.as_ref().map_or(0, |n| 2 * n.channels.len());
-        m2 > 0 && self.whitened.len() == self.len() * self.len * m2
+        let (m2, ctx) = self.norm.as_ref().map_or((0, 0), |n| (2 * n.channels.len(), n.features.context()));
+        m2 > 0 && self.whitened.len() == self.len() * (ctx + self.len) * m2
     }
 
     /// Number of windows.
@@ -651,22 +581,41 @@ impl Windows {
         if !(mix.weight > 0.0 && mix.weight < 1.0) {
             return Err(NnError::Data { msg: format!("mixing weight {} outside (0, 1)", mix.weight) });
         }
-        let (l, ch) = (self.len, norm.channels.len());
-        let w = 2 * ch;
+        let (l, ch, ctx) = (self.len, norm.channels.len(), norm.features.context());
+        let (w, rows) = (2 * ch, ctx + l);
         let (c, s) = (f64::from(mix.weight), (1.0 - f64::from(mix.weight).powi(2)).sqrt());
-        let (za, zb) =
-            (&self.whitened[a * l * w..(a + 1) * l * w], &self.whitened[mix.with * l * w..(mix.with + 1) * l * w]);
-        let mut z = vec![0.0f64; ch];
+        let (za, zb) = (
+            &self.whitened[a * rows * w..(a + 1) * rows * w],
+            &self.whitened[mix.with * rows * w..(mix.with + 1) * rows * w],
+        );
+        let mut stream = norm.stream();
+        let (mut z, mut u) = (vec![0.0f64; ch], vec![0.0f64; ch]);
         let mut row = vec![0.0f64; self.dim];
-        for ((ra, rb), o) in za.chunks_exact(w).zip(zb.chunks_exact(w)).zip(out.chunks_exact_mut(self.dim)) {
+        // Rows of the window before the flight's first step (front padding), to be filled
+        // with the features of the first.
+        let mut padding = 0;
+        for (k, (ra, rb)) in za.chunks_exact(w).zip(zb.chunks_exact(w)).enumerate() {
+            // A row absent from either window (before a flight or padding) is skipped.
+            if ra[0].is_nan() || rb[0].is_nan() {
+                padding += usize::from(k >= ctx && padding == k - ctx);
+                continue;
+            }
             let mut nis = 0.0;
             for i in 0..ch {
                 z[i] = c * f64::from(ra[i]) + s * f64::from(rb[i]);
-                let u = c * f64::from(ra[ch + i]) + s * f64::from(rb[ch + i]);
-                nis += u * u;
+                u[i] = c * f64::from(ra[ch + i]) + s * f64::from(rb[ch + i]);
+                nis += u[i] * u[i];
             }
-            norm.features.from_whitened(&z, nis, &mut row);
-            norm.standardise(&row, o);
+            stream.from_whitened(&z, &u, nis, &mut row);
+            if let Some(o) = k.checked_sub(ctx) {
+                norm.standardise(&row, &mut out[o * self.dim..(o + 1) * self.dim]);
+            }
+        }
+        let (pad_rows, first) = out.split_at_mut(padding * self.dim);
+        if let Some(first) = first.get(..self.dim) {
+            for o in pad_rows.chunks_exact_mut(self.dim) {
+                o.copy_from_slice(first);
+            }
         }
         Ok(())
     }
@@ -677,8 +626,9 @@ impl Windows {
 /// is not positive definite.
 fn whitened_row(step: &ResidueStep<'_>, row: &mut [f32]) {
     let m = step.dim();
-    let mut z = vec![0.0; m];
-    Features::Whitened.compute(step.r_k, step.s_k, step.nis, &mut z);
+    let mut z = vec![0.0; m + 1];
+    FeatureStream::new(Features::Whitened, &[]).compute(step, &mut z);
+    z.truncate(m);
     let u = step.decorrelated().unwrap_or_else(|| z.clone());
     for (o, v) in row.iter_mut().zip(z.iter().chain(&u)) {
         *o = *v as f32;
@@ -754,12 +704,12 @@ mod tests {
     fn whitened_features_divide_by_the_innovation_sigma_and_add_sqrt_nis() {
         let s = series_with_cov(&[(2.0, -4.0)], 1.0);
         let step = s.step(0).unwrap();
-        let mut out = [0.0; 3];
-        Features::Whitened.compute(step.r_k, step.s_k, step.nis, &mut out);
+        let mut out = [0.0f64; 3];
+        FeatureStream::new(Features::Whitened, s.channels()).compute(&step, &mut out);
         assert!((out[0] - 2.0).abs() < 1e-12 && (out[1] + 4.0 / 2f64.sqrt()).abs() < 1e-12, "{out:?}");
         assert!((out[2] - step.nis.sqrt()).abs() < 1e-12);
-        let mut log = [0.0; 3];
-        Features::WhitenedLog.compute(step.r_k, step.s_k, step.nis, &mut log);
+        let mut log = [0.0f64; 3];
+        FeatureStream::new(Features::WhitenedLog, s.channels()).compute(&step, &mut log);
         for (l, w) in log.iter().zip(&out) {
             assert!((l - w.signum() * w.abs().ln_1p()).abs() < 1e-12);
         }
@@ -784,7 +734,7 @@ mod tests {
         let r: Vec<(f64, f64)> =
             (0..12).map(|k| ((k as f64 * 0.7).sin() + 0.3, (k as f64 * 0.3).cos() - 0.2)).collect();
         let neg: Vec<(f64, f64)> = r.iter().map(|&(a, b)| (-a, -b)).collect();
-        for features in [Features::Raw, Features::Whitened, Features::WhitenedLog] {
+        for features in [Features::Raw, Features::Whitened, Features::WhitenedLog, Features::WhitenedLogDrift] {
             let norm = Normaliser::fit(&split_of(series_with_cov(&r, 1.0)), features).unwrap();
             let cfg = WindowConfig { len: 4, stride: 4, features };
             let w = Windows::from_split(&split_of(series_with_cov(&r, 1.0)), &norm, &cfg).unwrap();
@@ -863,6 +813,39 @@ mod tests {
         assert_eq!(flat(&mixed.mask), (0..12).map(|k| if k >= 5 { 1.0 } else { 0.0 }).collect::<Vec<f32>>());
     }
 
+    /// The drift channel of a mixed window reads the mixed residues of the steps before the
+    /// window too: mid-flight, the mix is the window of the mixed flight.
+    #[test]
+    fn a_mixed_window_carries_the_drift_of_the_steps_before_it() {
+        let n = 60;
+        let r: Vec<(f64, f64)> =
+            (0..n).map(|k| (0.05 * k as f64 + (k as f64 * 0.7).sin(), (k as f64 * 0.3).cos())).collect();
+        let q: Vec<(f64, f64)> = (0..n).map(|k| ((k as f64 * 0.2).cos(), -0.04 * k as f64)).collect();
+        let features = Features::WhitenedLogDrift;
+        let split = LabelledResidues::new(vec![
+            LabelledSeries::new(series_with_cov(&r, 1.0), None).unwrap(),
+            LabelledSeries::new(series_with_cov(&q, 1.0), None).unwrap(),
+        ])
+        .unwrap();
+        let cfg = WindowConfig { len: 12, stride: 12, features };
+        let norm = Normaliser::fit(&split, features).unwrap();
+        let w = Windows::for_training(&split, &norm, &cfg).unwrap();
+        assert!(w.can_mix());
+        // Windows start at 0, 12, 24, 36, 48 in each flight: window 4 is the first flight's
+        // last, with more than `Features::context` steps before it; window 9 the second's.
+        let c = 0.6f64;
+        let s = (1.0 - c * c).sqrt();
+        let mixed_r: Vec<(f64, f64)> = r.iter().zip(&q).map(|(x, y)| (c * x.0 + s * y.0, c * x.1 + s * y.1)).collect();
+        let want = Windows::from_split(&split_of(series_with_cov(&mixed_r, 1.0)), &norm, &cfg).unwrap();
+        let got = w.batch_augmented(&[4], &[], &[Some(Mix { with: 9, weight: c as f32 })], &Device::Cpu).unwrap();
+        let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let (g, e) = (flat(&got.x), flat(&want.batch(&[4], &Device::Cpu).unwrap().x));
+        assert!(g.iter().zip(&e).all(|(u, v)| (u - v).abs() < 1e-4), "{g:?} vs {e:?}");
+        // The drift channel is not constant there: the test reads it.
+        let dim = norm.dim();
+        assert!(e.chunks_exact(dim).any(|row| row[dim - 1] != e[dim - 1]));
+    }
+
     proptest! {
         /// A consistent filter whose sensors are `c` times noisier reports `c·r` with `c²·S`:
         /// the whitened features, and so every learning method's input, do not change.
@@ -872,11 +855,13 @@ mod tests {
             c in 0.01f64..100.0,
         ) {
             let (base, scaled) = (series_with_cov(&r, 1.0), series_with_cov(&r, c));
-            for features in [Features::Whitened, Features::WhitenedLog] {
+            for features in [Features::Whitened, Features::WhitenedLog, Features::WhitenedLogDrift] {
+                let (mut sa, mut sb) =
+                    (FeatureStream::new(features, base.channels()), FeatureStream::new(features, base.channels()));
                 for (a, b) in base.steps().zip(scaled.steps()) {
-                    let (mut fa, mut fb) = ([0.0; 3], [0.0; 3]);
-                    features.compute(a.r_k, a.s_k, a.nis, &mut fa);
-                    features.compute(b.r_k, b.s_k, b.nis, &mut fb);
+                    let (mut fa, mut fb) = ([0.0f64; 4], [0.0f64; 4]);
+                    sa.compute(&a, &mut fa);
+                    sb.compute(&b, &mut fb);
                     for (x, y) in fa.iter().zip(&fb) {
                         prop_assert!((x - y).abs() <= 1e-9 * (1.0 + x.abs()), "{:?} vs {:?}", fa, fb);
                     }

@@ -7,6 +7,7 @@
 
 use candle_core::Tensor;
 use ekf_residue::{DetectError, OnlineDecision, OnlineDetector, ResidueError, ResidueSeries, ResidueStep};
+use nn_toolkit::FeatureStream;
 
 use super::{QuadFormerDetector, RawScores, ScoreMode, combine};
 use crate::error::{ModelError, Result};
@@ -25,6 +26,8 @@ use crate::streaming::{StepOutput, StreamingNet};
 pub struct OnlineQuadFormer<'a> {
     det: &'a QuadFormerDetector,
     scorer: Scorer,
+    /// The feature map over the steps seen.
+    stream: FeatureStream,
     /// The newest normalised residue.
     x: Vec<f32>,
 }
@@ -118,7 +121,7 @@ impl<'a> OnlineQuadFormer<'a> {
             Some(engine) => Scorer::Engine(Box::new(engine.clone())),
             None => Scorer::Candle(CandleWindow::new(det.net.window_len(), m)),
         };
-        Self { det, scorer, x: vec![0.0; m] }
+        Self { det, scorer, stream: det.norm.stream(), x: vec![0.0; m] }
     }
 
     /// The raw scores of the newest step, with the window slid to end at `x`; the two TCD
@@ -155,7 +158,7 @@ impl<'a> OnlineQuadFormer<'a> {
                 return Err(ResidueError::NonFinite { step_idx: k, what }.into());
             }
         }
-        self.det.norm.apply(step, &mut self.x);
+        self.det.norm.apply(&mut self.stream, step, &mut self.x);
         Ok(self.raw_newest(with_tcd)?)
     }
 
@@ -211,6 +214,7 @@ impl OnlineDetector for OnlineQuadFormer<'_> {
     }
 
     fn reset(&mut self) {
+        self.stream.reset();
         match &mut self.scorer {
             Scorer::Engine(engine) => engine.reset(),
             Scorer::Candle(window) => window.n_seen = 0,
