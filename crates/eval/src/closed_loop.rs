@@ -62,7 +62,7 @@ use crate::runner::{fit, read_json_cache, write_json_cache};
 use crate::table::to_csv;
 
 /// Bumped when the unit's computation changes, so cached units are recomputed.
-const UNIT_VERSION: u32 = 5;
+const UNIT_VERSION: u32 = 6;
 
 /// Seconds after an attack ends over which `max_error_after_m` is taken.
 pub const AFTER_WINDOW_S: f64 = 30.0;
@@ -215,6 +215,9 @@ pub struct ClosedLoopRow {
     /// Earlier scores the fitted detectors' loop score averages with the newest
     /// ([`LoopSetting::smooth`]).
     pub smooth: Option<u64>,
+    /// Per-fix F1 of that setting on the trained families' validation flights flown in the
+    /// loop, where it was chosen ([`loop_setting`]).
+    pub valid_f1: Option<f64>,
     /// Per-fix precision of the alarms.
     pub precision: f64,
     /// Per-fix recall.
@@ -391,7 +394,7 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<(U
         .into_iter()
         .flatten()
         .collect();
-    let mut fitted: Vec<(Method, Box<dyn Detector>, LoopSetting)> = Vec::new();
+    let mut fitted: Vec<(Method, Box<dyn Detector>, Flown)> = Vec::new();
     let mut times = UnitTimes { data_s: t0.elapsed().as_secs_f64(), ..UnitTimes::default() };
     for m in methods {
         if let LoopMethod::Fitted(method) = *m {
@@ -404,10 +407,10 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<(U
                 smooth: &opts.config.loop_smooth,
                 f1_tolerance: opts.config.loop_f1_tolerance,
             };
-            let setting = loop_setting(det.as_ref(), &valid_flights, &filter, candidates)
+            let chosen = loop_setting(det.as_ref(), &valid_flights, &filter, candidates)
                 .map_err(|e| ReproduceError::Config(format!("closed loop {}: {e}", unit.slug())))?;
             times.setting_s += t0.elapsed().as_secs_f64();
-            fitted.push((method, det, setting));
+            fitted.push((method, det, chosen));
         }
     }
 
@@ -421,7 +424,7 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<(U
             for &latency_s in latencies {
                 let pilot = match method {
                     LoopMethod::Fitted(m) => match fitted.iter().find(|(f, _, _)| *f == m) {
-                        Some((_, d, t)) => Pilot::Fitted(d.as_ref(), *t),
+                        Some((_, d, chosen)) => Pilot::Fitted(d.as_ref(), chosen.setting),
                         None => return Err(ReproduceError::Config(format!("{} was not fitted", m.name()))),
                     },
                     LoopMethod::Px4Ekf2 => Pilot::Px4Ekf2,
@@ -434,9 +437,12 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<(U
                 if *family == Family::Ramp && latency_s == 0.0 && unit.seed == 0 {
                     record_drift(&mut drift, &flights, &traces, method.name());
                 }
-                let setting = if let Pilot::Fitted(_, s) = pilot { Some(s) } else { None };
+                let chosen = match method {
+                    LoopMethod::Fitted(m) => fitted.iter().find(|(f, _, _)| *f == m).map(|(_, _, c)| *c),
+                    _ => None,
+                };
                 let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
-                rows.push(row(unit, *family, method.name(), latency_s, setting, &steps));
+                rows.push(row(unit, *family, method.name(), latency_s, chosen, &steps));
             }
         }
     }
@@ -506,27 +512,30 @@ pub struct LoopCandidates<'a> {
 
 /// One candidate setting flown on the validation flights.
 #[derive(Debug, Clone, Copy)]
-struct Flown {
-    setting: LoopSetting,
+pub struct Flown {
+    /// The setting.
+    pub setting: LoopSetting,
     /// Index of its (confirm, smooth) pair in the order the pairs are flown.
-    pair: usize,
-    f1: f64,
-    alarm_events_per_clean_min: f64,
+    pub pair: usize,
+    /// Per-fix F1 of its alarms on the validation flights.
+    pub f1: f64,
+    /// Alarm events per clean minute of those flights.
+    pub alarm_events_per_clean_min: f64,
 }
 
 /// Step 4 of [`loop_setting`]: the chosen candidate.
-fn choose(flown: &[Flown], f1_tolerance: Option<f64>) -> Option<LoopSetting> {
+fn choose(flown: &[Flown], f1_tolerance: Option<f64>) -> Option<Flown> {
     // Higher F1, then the earlier pair, then the higher threshold.
     let by_f1 = |a: &Flown, b: &Flown| {
         a.f1.total_cmp(&b.f1).then(b.pair.cmp(&a.pair)).then(a.setting.threshold.total_cmp(&b.setting.threshold))
     };
     let best = flown.iter().max_by(|a, b| by_f1(a, b))?;
-    let Some(tol) = f1_tolerance else { return Some(best.setting) };
+    let Some(tol) = f1_tolerance else { return Some(*best) };
     flown
         .iter()
         .filter(|c| c.f1 >= best.f1 - tol)
         .max_by(|a, b| b.alarm_events_per_clean_min.total_cmp(&a.alarm_events_per_clean_min).then(by_f1(a, b)))
-        .map(|c| c.setting)
+        .copied()
 }
 
 /// The loop setting of a fitted detector (module doc), from the trained families' validation
@@ -560,7 +569,7 @@ pub fn loop_setting(
     valid: &[PlannedFlight],
     filter: &FilterConfig,
     candidates: LoopCandidates<'_>,
-) -> std::result::Result<LoopSetting, String> {
+) -> std::result::Result<Flown, String> {
     if let Some(tol) = candidates.f1_tolerance.filter(|t| !(t.is_finite() && *t >= 0.0)) {
         return Err(format!("loop_f1_tolerance: must be finite and at least 0, got {tol}"));
     }
@@ -731,9 +740,10 @@ fn row(
     family: Family,
     method: &str,
     latency_s: f64,
-    setting: Option<LoopSetting>,
+    chosen: Option<Flown>,
     flights: &[&[LoopStep]],
 ) -> ClosedLoopRow {
+    let setting = chosen.map(|c| c.setting);
     let m = loop_metrics(flights, family == Family::Ramp);
     ClosedLoopRow {
         model: unit.model,
@@ -748,6 +758,7 @@ fn row(
         reset_after_s: setting.and_then(|s| s.reset_after_s),
         confirm: setting.map(|s| s.confirm as u64),
         smooth: setting.map(|s| s.smooth as u64),
+        valid_f1: chosen.map(|c| c.f1),
         precision: m.precision,
         recall: m.recall,
         f1: m.f1,
@@ -1288,9 +1299,15 @@ mod tests {
             Family::Ramp,
             "X",
             0.0,
-            Some(LoopSetting { threshold: 1.0, lookback_s: 0.5, reset_after_s: None, confirm: 2, smooth: 0 }),
+            Some(Flown {
+                setting: LoopSetting { threshold: 1.0, lookback_s: 0.5, reset_after_s: None, confirm: 2, smooth: 0 },
+                pair: 0,
+                f1: 0.8,
+                alarm_events_per_clean_min: 0.0,
+            }),
             &[f.as_slice()],
         );
+        assert_eq!((r.confirm, r.valid_f1), (Some(2), Some(0.8)));
         assert_eq!((r.precision, r.recall), (7.0 / 12.0, 0.7));
         assert!((r.delay_median_s.unwrap() - 0.3).abs() < 1e-9);
         assert_eq!(r.n_intervals, 1);
@@ -1315,16 +1332,23 @@ mod tests {
             alarm_events_per_clean_min,
         };
         let flown = [c(0, 0.1, 0.90, 3.0), c(0, 0.2, 0.89, 1.0), c(0, 0.3, 0.80, 0.0), c(1, 0.1, 0.90, 2.0)];
-        let chosen = |tol| choose(&flown, tol).map(|s| (s.confirm, s.threshold));
+        let chosen = |tol| choose(&flown, tol).map(|c| (c.setting.confirm, c.setting.threshold));
         assert_eq!(chosen(None), Some((1, 0.1)), "best F1; ties: the earlier pair");
         let tied = [c(0, 0.1, 0.90, 3.0), c(1, 0.5, 0.90, 3.0)];
-        assert_eq!(choose(&tied, None).map(|s| s.confirm), Some(1), "the earlier pair before the higher threshold");
+        assert_eq!(
+            choose(&tied, None).map(|c| c.setting.confirm),
+            Some(1),
+            "the earlier pair before the higher threshold"
+        );
         assert_eq!(chosen(Some(0.0)), Some((2, 0.1)), "equal F1: the quieter");
         assert_eq!(chosen(Some(0.02)), Some((1, 0.2)), "within 0.02 of the best: the quietest");
         assert_eq!(chosen(Some(0.5)), Some((1, 0.3)));
-        assert_eq!(choose(&[], None).map(|s| s.threshold), None);
+        assert_eq!(choose(&[], None).map(|c| c.setting.threshold), None);
         // Equal F1 within one pair: the higher threshold.
-        assert_eq!(choose(&[c(0, 0.1, 0.5, 1.0), c(0, 0.2, 0.5, 1.0)], Some(0.0)).map(|s| s.threshold), Some(0.2));
+        assert_eq!(
+            choose(&[c(0, 0.1, 0.5, 1.0), c(0, 0.2, 0.5, 1.0)], Some(0.0)).map(|c| c.setting.threshold),
+            Some(0.2)
+        );
     }
 
     #[test]
@@ -1362,8 +1386,12 @@ mod tests {
     #[test]
     fn the_choice_section_counts_each_units_setting_once_and_states_the_rule() {
         let flight = steps(20, |k| (5..10).contains(&k), |k| (6..10).contains(&k));
-        let setting =
-            |confirm, smooth| LoopSetting { threshold: 0.5, lookback_s: 0.0, reset_after_s: None, confirm, smooth };
+        let setting = |confirm, smooth| Flown {
+            setting: LoopSetting { threshold: 0.5, lookback_s: 0.0, reset_after_s: None, confirm, smooth },
+            pair: 0,
+            f1: 0.5,
+            alarm_events_per_clean_min: 0.0,
+        };
         let mut rows = Vec::new();
         for (seed, (k, w)) in [(0, (2, 0)), (1, (1, 2)), (2, (2, 0))] {
             let unit = LoopUnit { seed, ..UNIT };

@@ -220,7 +220,9 @@ macro_rules! registry {
     };
 }
 
-/// Width of the `--quick` windows, shared by QUADFormer, CNN and LSTM.
+/// Width of the `--quick` windows, shared by QUADFormer, CNN and LSTM. They read the
+/// per-step features (`WhitenedLog`): on the quick cell's five training flights the tiny
+/// QUADFormer does not learn the drift channel (docs/decisions/094-drift-channel.md).
 const QUICK_WINDOW_LEN: usize = 50;
 
 /// The `--quick` window of the networks: QUADFormer's tiny configuration's.

@@ -27,7 +27,7 @@ use crate::error::{ModelError, Result};
 use crate::model::{GradFlow, LossConfig, MinMaxTrainer, NetConfig, QuadFormerNet};
 use crate::streaming::StreamingNet;
 use nn_toolkit::train::{TrainConfig, TrainReport, train_on};
-use nn_toolkit::window::{Normaliser, WindowConfig, Windows};
+use nn_toolkit::window::{Features, Normaliser, WindowConfig, Windows};
 
 /// How per-step scores are formed from the network outputs (module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -131,15 +131,16 @@ pub struct QuadFormerConfig {
 }
 
 impl Default for QuadFormerConfig {
-    /// The configuration chosen on validation (docs/decisions/004-training-budget.md and
-    /// 044-whitened-inputs.md): windows of 100 whitened steps every 20 steps, every window in
+    /// The configuration chosen on validation (docs/decisions/004-training-budget.md,
+    /// 044-whitened-inputs.md and 094-drift-channel.md): windows of 100 whitened steps with
+    /// the GLR drift channel every 20 steps, every window in
     /// every epoch with half of each epoch's windows drawn from labelled flights, each window
     /// mirrored with probability ½ and each labelled one mixed with another with probability ½
     /// (docs/decisions/047-mixed-windows.md), up to 20 epochs at a learning rate that falls by
     /// 0.85 per epoch, stopped after 3 epochs without a better validation F1.
     fn default() -> Self {
         Self {
-            window: WindowConfig { stride: 20, ..WindowConfig::default() },
+            window: WindowConfig { stride: 20, features: Features::WhitenedLogDrift, ..WindowConfig::default() },
             net: NetConfig::default(),
             loss: LossConfig::default(),
             train: TrainConfig {

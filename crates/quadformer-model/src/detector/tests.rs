@@ -246,6 +246,30 @@ fn online_matches_batch_in_every_mode() {
     }
 }
 
+/// With the drift channel (`Features::WhitenedLogDrift`, computed over each flight's history)
+/// the detector learns, and its streaming decision on a flight's last step is the batch score
+/// of the window ending there, whose drift channel saw the steps before the window too.
+#[test]
+fn a_drift_channel_detector_learns_and_streams_what_it_scores() {
+    let mut cfg = config();
+    cfg.window.features = Features::WhitenedLogDrift;
+    let mut flights = split(&[1, 2], 240, false).flights().to_vec();
+    flights.push(flight(240, 3, 4.0, true));
+    let mut det = cfg.fit(&LabelledResidues::new(flights).unwrap(), &split(&[4], 240, true)).unwrap();
+    assert_eq!(det.normaliser().dim(), M + 2);
+    let f = f1(&det, &split(&[5, 6], 240, true));
+    assert!(f > 0.8, "test F1 {f}, chosen {:?}", det.chosen());
+    let long = flight(3 * L, 37, 4.0, false);
+    for r in det.mode_results().to_vec() {
+        det.stream = r;
+        let batch = stitched(&det, long.series());
+        let mut online = det.online();
+        let last = long.series().steps().map(|s| online.update(&s).unwrap()).last().unwrap();
+        let want = batch[3 * L - 1];
+        assert!((last.score - want).abs() < 1e-6, "{:?}: {} vs {want}", r.mode, last.score);
+    }
+}
+
 /// A detector whose network the streaming engine does not represent streams through the candle
 /// forward pass on the sliding window: the same decisions as the engine, step by step through
 /// the padding and the sliding, and the batch score of a window's last step, in every mode.
