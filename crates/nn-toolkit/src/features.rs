@@ -13,9 +13,16 @@
 //!   [`DRIFT_WINDOW`] steps (`ekf_residue::drift`), as `ln(1 + √g_k)`. A slow spoofed drift
 //!   stays within a few σ at every step, where a window of per-step features shows the network
 //!   little; the GLR sums gather its evidence over the steps (docs/decisions/094-drift-channel.md).
+//!   It reads the GPS entries of the residue decorrelated by its whole covariance,
+//!   `u = L⁻¹ r_k`, unit-variance white noise on clean steps. Where the GPS channels come
+//!   first (Model I) they are the GPS innovation whitened by its own block, as the GLR drift
+//!   test reads it; where they follow the VO channels (Model II) they are the GPS innovation
+//!   conditioned on the VO innovation, which a GPS spoof leaves clean.
 //!
 //! The drift channel depends on the steps before, so features are computed by a
-//! [`FeatureStream`] fed the steps of one series in order; the other maps are per step.
+//! [`FeatureStream`] fed the steps of one series in order; the other maps are per step. A
+//! detector that re-scores a window from its first step (`ekf_residue::WindowedOnline`) gives
+//! the window's first [`Features::context`] steps a shorter history than the flight had.
 
 use ekf_residue::ResidueStep;
 use ekf_residue::drift::{DriftMemory, END_STEPS, LEVEL_STEPS};
@@ -141,7 +148,7 @@ impl FeatureStream {
         }
         let drift = match &self.drift {
             Some(_) => {
-                let u = step.decorrelated().unwrap_or_else(|| out[..m].to_vec());
+                let u = step.decorrelated().unwrap_or_else(|| out.iter().take(m).copied().collect());
                 self.drift_of(&u)
             }
             None => 0.0,
@@ -246,6 +253,21 @@ mod tests {
             let u = step.decorrelated().unwrap();
             b.from_whitened(&u, &u, step.nis, &mut y);
             assert_eq!(x, y);
+        }
+    }
+
+    /// A step of more channels than the output holds, with a covariance that is not positive
+    /// definite or not finite, gives finite features and no panic.
+    #[test]
+    fn a_malformed_step_does_not_panic() {
+        let channels: Vec<String> = vec!["gps_x".into(), "gps_y".into()];
+        let mut stream = FeatureStream::new(Features::WhitenedLogDrift, &channels);
+        for s_k in [[0.0; 9], [f64::NAN; 9]] {
+            let step = ResidueStep { t: 0.0, r_k: &[1.0, 2.0, 3.0], s_k: &s_k, nis: 1.0 };
+            let mut out = [0.0; 2];
+            stream.compute(&step, &mut out);
+            let mut short = [0.0; 1];
+            stream.from_whitened(&[1.0, 2.0, 3.0], &[f64::NAN], 1.0, &mut short);
         }
     }
 }
