@@ -422,14 +422,14 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<(U
         for &method in methods {
             let latencies: &[f64] = if matches!(method, LoopMethod::Fitted(_)) { &LATENCIES_S } else { &[0.0] };
             for &latency_s in latencies {
-                let pilot = match method {
+                let (pilot, chosen) = match method {
                     LoopMethod::Fitted(m) => match fitted.iter().find(|(f, _, _)| *f == m) {
-                        Some((_, d, chosen)) => Pilot::Fitted(d.as_ref(), chosen.setting),
+                        Some((_, d, chosen)) => (Pilot::Fitted(d.as_ref(), chosen.setting), Some(*chosen)),
                         None => return Err(ReproduceError::Config(format!("{} was not fitted", m.name()))),
                     },
-                    LoopMethod::Px4Ekf2 => Pilot::Px4Ekf2,
-                    LoopMethod::None => Pilot::None,
-                    LoopMethod::Oracle => Pilot::Oracle,
+                    LoopMethod::Px4Ekf2 => (Pilot::Px4Ekf2, None),
+                    LoopMethod::None => (Pilot::None, None),
+                    LoopMethod::Oracle => (Pilot::Oracle, None),
                 };
                 let traces = fly_family(&flights, &filter, pilot, latency_s).map_err(|e| {
                     ReproduceError::Config(format!("closed loop {} {}: {e}", unit.slug(), family.name()))
@@ -437,10 +437,6 @@ fn run_unit(unit: LoopUnit, opts: &Options, methods: &[LoopMethod]) -> Result<(U
                 if *family == Family::Ramp && latency_s == 0.0 && unit.seed == 0 {
                     record_drift(&mut drift, &flights, &traces, method.name());
                 }
-                let chosen = match method {
-                    LoopMethod::Fitted(m) => fitted.iter().find(|(f, _, _)| *f == m).map(|(_, _, c)| *c),
-                    _ => None,
-                };
                 let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
                 rows.push(row(unit, *family, method.name(), latency_s, chosen, &steps));
             }

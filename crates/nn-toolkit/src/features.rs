@@ -119,11 +119,6 @@ impl FeatureStream {
         Self { features, drift, picked: Vec::new() }
     }
 
-    /// The feature map.
-    pub fn features(&self) -> Features {
-        self.features
-    }
-
     /// Back to the start of a series.
     pub fn reset(&mut self) {
         if let Some((memory, _)) = &mut self.drift {
@@ -142,16 +137,12 @@ impl FeatureStream {
             }
             return;
         }
-        for (i, (o, r)) in out.iter_mut().zip(step.r_k).enumerate() {
-            let var = step.s_k.get(i * m + i).copied().unwrap_or(1.0);
-            *o = if var > 0.0 { r / var.sqrt() } else { *r };
-        }
-        let drift = match &self.drift {
-            Some(_) => {
-                let u = step.decorrelated().unwrap_or_else(|| out.iter().take(m).copied().collect());
-                self.drift_of(&u)
-            }
-            None => 0.0,
+        whiten_per_channel(step, out);
+        let drift = if self.drift.is_some() {
+            let u = step.decorrelated().unwrap_or_else(|| out.iter().take(m).copied().collect());
+            self.drift_of(&u)
+        } else {
+            0.0
         };
         self.finish_whitened(m, step.nis, drift, out);
     }
@@ -196,6 +187,16 @@ impl FeatureStream {
                 *o = o.signum() * o.abs().ln_1p();
             }
         }
+    }
+}
+
+/// `z_i = r_i / √(S_k)_ii` of each channel of `step` into `out` (as many as both hold); a
+/// non-positive variance counts as 1.
+pub(crate) fn whiten_per_channel(step: &ResidueStep<'_>, out: &mut [f64]) {
+    let m = step.dim();
+    for (i, (o, r)) in out.iter_mut().zip(step.r_k).enumerate() {
+        let var = step.s_k.get(i * m + i).copied().unwrap_or(1.0);
+        *o = if var > 0.0 { r / var.sqrt() } else { *r };
     }
 }
 

@@ -18,6 +18,7 @@ use ekf_residue::{LabelledResidues, ResidueSeries, ResidueStep};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
+use crate::features::whiten_per_channel;
 pub use crate::features::{FeatureStream, Features};
 
 /// Smallest standard deviation treated as non-zero; a constant channel is divided by 1.
@@ -626,9 +627,8 @@ impl Windows {
 /// is not positive definite.
 fn whitened_row(step: &ResidueStep<'_>, row: &mut [f32]) {
     let m = step.dim();
-    let mut z = vec![0.0; m + 1];
-    FeatureStream::new(Features::Whitened, &[]).compute(step, &mut z);
-    z.truncate(m);
+    let mut z = vec![0.0; m];
+    whiten_per_channel(step, &mut z);
     let u = step.decorrelated().unwrap_or_else(|| z.clone());
     for (o, v) in row.iter_mut().zip(z.iter().chain(&u)) {
         *o = *v as f32;
