@@ -14,13 +14,9 @@ use nn_toolkit::vmath;
 impl StreamingNet {
     /// Why the engine cannot represent `net`, if it cannot: then the detector scores its
     /// streaming decisions with the candle forward pass instead
-    /// ([`crate::detector::OnlineQuadFormer`]). Every [`crate::NetConfig`] but a causal one
-    /// ([`crate::NetConfig::causal`], whose masks the engine does not implement) is
-    /// represented; the engine reads `f32` weights only.
+    /// ([`crate::detector::OnlineQuadFormer`]). Every [`crate::NetConfig`] is represented;
+    /// the engine reads `f32` weights only.
     pub fn unsupported(net: &QuadFormerNet) -> Option<String> {
-        if net.config().causal {
-            return Some("causal attention".into());
-        }
         let dtypes: Vec<_> = net.varmap().all_vars().iter().map(|v| v.dtype()).collect();
         dtypes
             .iter()
@@ -136,6 +132,7 @@ impl StreamingNet {
             d,
             heads,
             dcm: cfg.dcm,
+            causal: cfg.causal,
             class_input: cfg.class_input,
             layout,
             w_in,

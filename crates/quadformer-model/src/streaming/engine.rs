@@ -6,7 +6,7 @@ use super::dense::{LayerNormW, Linear};
 use super::layout::RingLayout;
 use crate::error::{ModelError, Result};
 use crate::js::mixture_entropy_terms;
-use crate::model::{ClassInput, PRIOR_EXP_FLOOR};
+use crate::model::{CAUSAL_MASK_FLOOR, ClassInput, PRIOR_EXP_FLOOR};
 use nn_toolkit::fused::{add_bias_row, gelu_value, softmax_rows};
 use nn_toolkit::matmul::{MatMut, MatRef, matmul};
 use nn_toolkit::vmath;
@@ -64,7 +64,8 @@ pub struct StepOutput<'a> {
     pub recon_err: f32,
     /// Classifier logit at the newest step.
     pub logit: f32,
-    /// TCD of every step of the window (oldest first), when asked for.
+    /// TCD of every step of the window (oldest first), when asked for; with a causal network
+    /// that has seen fewer than `l` residues, of the steps seen.
     pub tcd: Option<&'a [f32]>,
 }
 
@@ -116,6 +117,8 @@ pub struct StreamingNet {
     pub(super) d: usize,
     pub(super) heads: usize,
     pub(super) dcm: bool,
+    /// Every step attends to itself and earlier steps only ([`crate::NetConfig::causal`]).
+    pub(super) causal: bool,
     pub(super) class_input: ClassInput,
     /// The slots of a row of the ring, `w_in`, `p_in` and `x0`.
     pub(super) layout: RingLayout,
@@ -167,7 +170,24 @@ impl StreamingNet {
         )?;
         let s = &self.s;
         let recon_err = s.r_hat.iter().zip(x).map(|(r, v)| (r - v) * (r - v)).sum::<f32>() / self.m as f32;
-        Ok(StepOutput { recon_err, logit: s.logit[0], tcd: with_tcd.then_some(&s.tcd[..]) })
+        let rows = self.newest() + 1;
+        Ok(StepOutput { recon_err, logit: s.logit[0], tcd: with_tcd.then_some(&s.tcd[..rows]) })
+    }
+
+    /// Where the window's steps start in the padded ring order (oldest first) and the
+    /// position of the newest step. A full-window network reads the padded window, newest
+    /// step last. A causal network that has seen `n < l` residues reads them as the window's
+    /// first `n` positions, as its batch score of a flight's first window does: no padding,
+    /// the newest step at position `n − 1`; the positions after it hold padding copies,
+    /// which no position up to it reads.
+    fn placement(&self) -> (usize, usize) {
+        let n = self.n_seen.min(self.l);
+        if self.causal && n < self.l { (self.l - n, n - 1) } else { (0, self.l - 1) }
+    }
+
+    /// The position of the newest step in the window ([`StreamingNet::placement`]).
+    fn newest(&self) -> usize {
+        self.placement().1
     }
 
     /// Stores the residue part of layer 1's input and projections in the ring (every slot for
@@ -204,12 +224,14 @@ impl StreamingNet {
         let (l, d, heads) = (self.l, self.d, self.heads);
         let dh = d / heads;
         let scale = 1.0 / (dh as f32).sqrt();
+        let (shift, newest) = self.placement();
+        let causal = self.causal;
         let layout = &self.layout;
         let w_ring = layout.width();
         let s = &mut self.s;
         // Layer 1's input and projections: ring (oldest first) plus the position part.
         for i in 0..l {
-            let slot = (self.start + i) % l;
+            let slot = (self.start + shift + i) % l;
             let (dst, ring, pos) = (
                 &mut s.x0[i * w_ring..(i + 1) * w_ring],
                 &self.ring[slot * w_ring..(slot + 1) * w_ring],
@@ -222,9 +244,12 @@ impl StreamingNet {
         let n_layers = self.layers.len();
         for (idx, layer) in self.layers.iter().enumerate() {
             let last = idx + 1 == n_layers;
+            // The rows this layer outputs (from `out_first`) and the rows it forms queries of
+            // (from `first_q`): every row, or with the last layer the newest one.
             let out_rows = if last { 1 } else { l };
+            let out_first = if last { newest } else { 0 };
             let q_rows = if with_tcd || !last { l } else { 1 };
-            let first_q = l - q_rows;
+            let first_q = if q_rows == l { 0 } else { newest };
             // Input `H`, queries, own keys and values as views (row stride), layer 1 from `x0`.
             let (h_in, h_rs): (&[f32], usize) = if idx == 0 { (&s.x0[layout.h0.start..], w_ring) } else { (&s.h, d) };
             // Keys this layer projects for the next one (DCM, several heads).
@@ -275,7 +300,7 @@ impl StreamingNet {
                 Scores::LowRank { e } => {
                     for hd in 0..heads {
                         let c = &mut attn[hd * q_rows * l..(hd + 1) * q_rows * l];
-                        c.copy_from_slice(&e[(hd * l + first_q) * l..(hd + 1) * l * l]);
+                        c.copy_from_slice(&e[(hd * l + first_q) * l..][..q_rows * l]);
                         let (query, key) = (layout.low_rank_query(hd), layout.low_rank_key(hd));
                         matmul(
                             MatMut::rows(c, q_rows, l)?,
@@ -307,12 +332,15 @@ impl StreamingNet {
                     )?;
                 }
             }
+            if causal {
+                mask_future(&mut attn[..heads * q_rows * l], l, q_rows, first_q);
+            }
             // Attention `C = softmax(S)`, with `Σ C ln C` of every row for the TCD.
             let entropy = with_tcd.then_some((&mut s.ent_attn[idx][..], &mut s.terms[..]));
             softmax_rows(&mut attn[..heads * q_rows * l], l, entropy);
             // Attention output of the `out_rows` newest rows, heads side by side.
             let c_out = |hd: usize| -> Result<MatRef<'_>> {
-                Ok(MatRef::rows(&attn[(hd * q_rows + q_rows - out_rows) * l..(hd + 1) * q_rows * l], out_rows, l)?)
+                Ok(MatRef::rows(&attn[(hd * q_rows + out_first - first_q) * l..][..out_rows * l], out_rows, l)?)
             };
             if idx == 0 || out_rows == l {
                 let (v, v_rs, v_off) = if idx == 0 { (&s.x0[..], w_ring, layout.v.start) } else { (&s.v[..], d, 0) };
@@ -345,12 +373,12 @@ impl StreamingNet {
             // Gaussian prior from this layer's input (only for the TCD).
             if with_tcd && let LayerPrior::Gaussian { sigma } = &layer.prior {
                 sigma.forward(MatRef::new(h_in, l, d, h_rs, 1)?, &mut s.sigma, l)?;
-                gaussian_prior(&s.sigma, heads, l, &mut s.prior[idx], &mut s.ent_prior[idx], &mut s.terms);
+                gaussian_prior(&s.sigma, heads, l, causal, &mut s.prior[idx], &mut s.ent_prior[idx], &mut s.terms);
             }
             // `Z = Norm(C V W_O + b_O + H)` on the newest `out_rows` rows.
             let rows = out_rows * d;
             for (i, z_row) in s.z[..rows].chunks_exact_mut(d).enumerate() {
-                let src = (l - out_rows + i) * h_rs;
+                let src = (out_first + i) * h_rs;
                 z_row.copy_from_slice(&h_in[src..src + d]);
                 match &layer.w_o {
                     Some(w_o) => add_bias_row(z_row, &w_o.b),
@@ -440,13 +468,35 @@ impl StreamingNet {
     }
 }
 
+/// Adds the causal mask to a block of score rows (`heads × rows × l`, the rows of positions
+/// `first..first + rows` of each head): [`CAUSAL_MASK_FLOOR`] after the diagonal, as
+/// [`crate::model::QuadFormerNet`] does, so the softmax gives those steps no weight.
+#[inline(always)]
+fn mask_future(scores: &mut [f32], l: usize, rows: usize, first: usize) {
+    for (r, row) in scores.chunks_exact_mut(l).enumerate() {
+        let position = first + r % rows;
+        for v in &mut row[position + 1..] {
+            *v += CAUSAL_MASK_FLOOR;
+        }
+    }
+}
+
 /// Anomaly Transformer's Gaussian prior from the width projections `s` (`l × heads`):
 /// `σ = 3^(sigmoid(5s) + 10⁻⁵) − 1`, `Tᵢⱼ ∝ exp(−|j − i|²/(2σᵢ²))` (exponent clamped at
 /// [`PRIOR_EXP_FLOOR`]), as [`crate::model::QuadFormerNet`] builds it: the softmax of the exponents, whose
-/// maximum is 0. `t` is `heads × l × l`, `ent` (`heads × l`) the `Σⱼ Tᵢⱼ ln Tᵢⱼ` of its rows;
-/// `shifted` (a block of rows, [`vmath::row_block`]) is scratch.
+/// maximum is 0; with `causal`, restricted to `j ≤ i` and renormalised. `t` is `heads × l × l`,
+/// `ent` (`heads × l`) the `Σⱼ Tᵢⱼ ln Tᵢⱼ` of its rows; `shifted` (a block of rows,
+/// [`vmath::row_block`]) is scratch.
 #[inline(always)]
-pub(super) fn gaussian_prior(s: &[f32], heads: usize, l: usize, t: &mut [f32], ent: &mut [f32], shifted: &mut [f32]) {
+pub(super) fn gaussian_prior(
+    s: &[f32],
+    heads: usize,
+    l: usize,
+    causal: bool,
+    t: &mut [f32],
+    ent: &mut [f32],
+    shifted: &mut [f32],
+) {
     let floor = PRIOR_EXP_FLOOR as f32;
     for hd in 0..heads {
         for i in 0..l {
@@ -457,6 +507,9 @@ pub(super) fn gaussian_prior(s: &[f32], heads: usize, l: usize, t: &mut [f32], e
             for (j, v) in row.iter_mut().enumerate() {
                 let dist = j as f32 - i as f32;
                 *v = (-(dist * dist) / two_var).clamp(floor, 0.0);
+            }
+            if causal {
+                row[i + 1..].fill(CAUSAL_MASK_FLOOR);
             }
         }
     }

@@ -53,6 +53,13 @@
 //! Until `l` residues have been seen the window is padded at the front with the first one, as
 //! in [`nn_toolkit::window`].
 //!
+//! A causal network ([`crate::NetConfig::causal`]) gets the candle pass's masks: each score row
+//! adds [`crate::model::CAUSAL_MASK_FLOOR`] after its diagonal before the softmax, and its TPC
+//! prior is the network's own, restricted to the past and renormalised (the Gaussian prior is
+//! restricted the same way). It needs no padding: until `l` residues have been seen they fill
+//! the window's first positions and the newest is scored where it stands, as the batch score
+//! of a flight's first window does.
+//!
 //! The engine reads the network's typed weights ([`crate::weights::QuadFormerWeights`]) and
 //! nothing by name: `build` prepares them (host copies in `dense`, the products formed once, the
 //! score form of each layer), `layout` names the slots of a ring row, and `engine` holds the

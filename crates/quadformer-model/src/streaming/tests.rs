@@ -40,6 +40,32 @@ fn network(cfg: &NetConfig, seed: u64) -> QuadFormerNet {
     net
 }
 
+/// The candle pass's outputs for the newest step of the window that ends at residue `k`:
+/// its logit, reconstruction error and the TCD of the window's steps. A full-window network
+/// reads the padded window ([`window`]); a causal one that has seen fewer than `L` residues
+/// reads them as the opening positions of a window (the rest repeats the newest) and scores
+/// position `k`, as [`crate::detector::OnlineQuadFormer`]'s candle path does.
+fn candle_newest(net: &QuadFormerNet, xs: &[Vec<f32>], k: usize, with_tcd: bool) -> (f32, f32, Vec<f32>) {
+    let warm_up = net.config().causal && k + 1 < L;
+    let (input, steps, row, seen) = if warm_up {
+        let rows: Vec<f32> = (0..L).flat_map(|i| xs[i.min(k)].clone()).collect();
+        (Tensor::from_vec(rows, (1, L, M), &Device::Cpu).unwrap(), Steps::All, k, k + 1)
+    } else {
+        (window(xs, k), Steps::Last { with_tcd }, 0, L)
+    };
+    let out = net.forward_steps(&input, steps).unwrap();
+    let logit = out.logits.narrow(1, row, 1).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()[0];
+    let r_hat = out.r_hat.narrow(1, row, 1).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let err = r_hat.iter().zip(&xs[k]).map(|(r, v)| (r - v) * (r - v)).sum::<f32>() / M as f32;
+    let tcd = if with_tcd {
+        let tcd = QuadFormerNet::tcd(&out, GradFlow::Stop, GradFlow::Stop).unwrap();
+        tcd.narrow(1, 0, seen).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()
+    } else {
+        Vec::new()
+    };
+    (logit, err, tcd)
+}
+
 /// Streams `n` residues through the engine and compares every step with the candle pass.
 fn agrees_with_candle(cfg: &NetConfig, with_tcd: bool) {
     let net = network(cfg, 7);
@@ -48,17 +74,12 @@ fn agrees_with_candle(cfg: &NetConfig, with_tcd: bool) {
     let xs = residues(2 * L + 5, 3);
     for (k, x) in xs.iter().enumerate() {
         let got = engine.push(x, with_tcd).unwrap();
-        let out = net.forward_steps(&window(&xs, k), Steps::Last { with_tcd }).unwrap();
-        let logit = out.logits.flatten_all().unwrap().to_vec1::<f32>().unwrap()[0];
-        let r_hat = out.r_hat.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        let err = r_hat.iter().zip(x).map(|(r, v)| (r - v) * (r - v)).sum::<f32>() / M as f32;
+        let (logit, err, want) = candle_newest(&net, &xs, k, with_tcd);
         assert!((got.logit - logit).abs() < 1e-4 * (1.0 + logit.abs()), "step {k}: logit {} vs {logit}", got.logit);
         assert!((got.recon_err - err).abs() < 1e-4 * (1.0 + err), "step {k}: error {} vs {err}", got.recon_err);
         match got.tcd {
             Some(tcd) => {
-                let want = QuadFormerNet::tcd(&out, GradFlow::Stop, GradFlow::Stop).unwrap();
-                let want = want.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-                assert_eq!(tcd.len(), L);
+                assert_eq!(tcd.len(), want.len(), "step {k}");
                 for (i, (a, b)) in tcd.iter().zip(&want).enumerate() {
                     assert!((a - b).abs() < 1e-5 + 1e-4 * b.abs(), "step {k}, row {i}: TCD {a} vs {b}");
                 }
@@ -105,6 +126,18 @@ fn reconstruction_input_and_other_depths_match_candle() {
     agrees_with_candle(&NetConfig { n_layers: 2, ..small() }, true);
     agrees_with_candle(&NetConfig { n_layers: 4, ..small() }, true);
     agrees_with_candle(&NetConfig { n_layers: 4, ..small() }, false);
+}
+
+#[test]
+fn causal_attention_matches_candle_from_the_first_step() {
+    for with_tcd in [true, false] {
+        agrees_with_candle(&NetConfig { causal: true, ..small() }, with_tcd);
+        agrees_with_candle(&NetConfig { causal: true, n_heads: 2, ..small() }, with_tcd);
+        agrees_with_candle(&NetConfig { causal: true, dcm: false, ..small() }, with_tcd);
+        agrees_with_candle(&NetConfig { causal: true, n_layers: 1, ..small() }, with_tcd);
+    }
+    agrees_with_candle(&NetConfig { causal: true, prior: Prior::Gaussian, n_heads: 2, ..small() }, true);
+    agrees_with_candle(&NetConfig { causal: true, n_heads: 4, ..small() }, true);
 }
 
 #[test]
