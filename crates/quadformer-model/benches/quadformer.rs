@@ -40,12 +40,16 @@ fn streaming(c: &mut Criterion) {
     let split = LabelledResidues::new(vec![flight(600, 1)]).unwrap();
     let f = flight(400, 2);
     let steps: Vec<_> = f.series().steps().collect();
-    // The default network, then the smaller one a deployment can choose (docs/performance.md).
-    let sizes = [(64, 128), (32, 64)];
-    for (mode, (d_model, d_ff)) in sizes.iter().flat_map(|&s| [(ScoreMode::Combined, s), (ScoreMode::Classifier, s)]) {
+    // The default network, the smaller one a deployment can choose (docs/performance.md) and
+    // the causal one of the closed loop (docs/decisions/092-causal-loop-quadformer.md).
+    let nets = [(64, 128, false), (32, 64, false), (64, 128, true)];
+    for (mode, (d_model, d_ff, causal)) in
+        nets.iter().flat_map(|&s| [(ScoreMode::Combined, s), (ScoreMode::Classifier, s)])
+    {
         let mut cfg = QuadFormerConfig::default();
         cfg.net.d_model = d_model;
         cfg.net.d_ff = d_ff;
+        cfg.net.causal = causal;
         cfg.train.epochs = 1;
         cfg.train.max_windows_per_epoch = Some(32);
         cfg.train.progress = false;
@@ -57,7 +61,11 @@ fn streaming(c: &mut Criterion) {
         }
         let mut k = L;
         c.bench_function(
-            &format!("streaming decision, {} mode (l=100, d_model={d_model}, 3 layers, m=6)", mode.name()),
+            &format!(
+                "streaming decision, {} mode (l=100, d_model={d_model}, 3 layers, m=6{})",
+                mode.name(),
+                if causal { ", causal" } else { "" }
+            ),
             |b| {
                 b.iter(|| {
                     k = if k + 1 >= steps.len() { L } else { k + 1 };

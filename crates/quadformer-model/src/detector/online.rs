@@ -1,9 +1,9 @@
 //! The streaming QUADFormer detector ([`OnlineQuadFormer`]): every new residue is scored as the
-//! last step of the window of the `l` latest ones, by the streaming engine
+//! newest step of the window of the `l` latest ones (its last position; a causal network's
+//! first `l − 1` steps open the window instead), by the streaming engine
 //! ([`crate::streaming::StreamingNet`]) or, for a network the engine cannot represent, by the
-//! candle forward pass on the same window ([`QuadFormerNet::forward_steps`] with
-//! [`Steps::Last`]). Both compute the same function; the differential tests of the engine
-//! bound their difference to rounding.
+//! candle forward pass on the same window ([`QuadFormerNet::forward_steps`]). Both compute the
+//! same function; the differential tests of the engine bound their difference to rounding.
 
 use candle_core::Tensor;
 use ekf_residue::{DetectError, OnlineDecision, OnlineDetector, ResidueError, ResidueSeries, ResidueStep};
@@ -50,7 +50,8 @@ impl Scorer {
 }
 
 /// The window of the `l` latest residues for the candle forward pass: a ring of `l × m`
-/// values, front-padded with the first residue like the engine's.
+/// values, front-padded with the first residue like the engine's (a causal network reads the
+/// steps seen as the window's opening positions instead, [`CandleWindow::push`]).
 struct CandleWindow {
     l: usize,
     m: usize,

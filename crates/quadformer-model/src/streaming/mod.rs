@@ -2,8 +2,9 @@
 //! sliding window (reconstruction, classifier logit and, when asked, the TCD of every step),
 //! updated one residue at a time with the work and memory fixed in advance.
 //!
-//! It computes what [`crate::model::QuadFormerNet::forward_steps`] with [`crate::model::Steps::Last`] computes, from the
-//! same weights, in plain `f32` buffers ([`nn_toolkit::matmul`], the element-wise kernels of
+//! It computes what [`crate::model::QuadFormerNet::forward_steps`] with [`crate::model::Steps::Last`] computes (for a
+//! causal network's first `l − 1` steps, row `n − 1` of [`crate::model::Steps::All`] on a window
+//! opening with the `n` steps seen), from the same weights, in plain `f32` buffers ([`nn_toolkit::matmul`], the element-wise kernels of
 //! [`nn_toolkit::fused`] and [`crate::js`]), and does less work in seven ways, exact but for rounding:
 //!
 //! 1. **Layer 1 is linear in each residue.** Its input is `h⁰ᵢ = xᵢ W_e + b_e + PEᵢ` and its

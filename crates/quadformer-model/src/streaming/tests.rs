@@ -138,18 +138,23 @@ fn causal_attention_matches_candle_from_the_first_step() {
     }
     agrees_with_candle(&NetConfig { causal: true, prior: Prior::Gaussian, n_heads: 2, ..small() }, true);
     agrees_with_candle(&NetConfig { causal: true, n_heads: 4, ..small() }, true);
+    // The last layer on the newest row only: ring keys (layer 2) and projected scores (layer 1).
+    agrees_with_candle(&NetConfig { causal: true, n_layers: 2, ..small() }, false);
+    agrees_with_candle(&NetConfig { causal: true, n_heads: 4, n_layers: 1, ..small() }, false);
 }
 
 #[test]
 fn reset_restarts_the_padding() {
-    let net = network(&small(), 1);
-    let mut engine = StreamingNet::new(&net).unwrap();
-    let xs = residues(L + 3, 4);
-    let first: Vec<f32> = xs.iter().map(|x| engine.push(x, false).unwrap().logit).collect();
-    engine.reset();
-    assert_eq!(engine.n_seen(), 0);
-    let again: Vec<f32> = xs.iter().map(|x| engine.push(x, false).unwrap().logit).collect();
-    assert_eq!(first, again);
+    for cfg in [small(), NetConfig { causal: true, ..small() }] {
+        let net = network(&cfg, 1);
+        let mut engine = StreamingNet::new(&net).unwrap();
+        let xs = residues(L + 3, 4);
+        let first: Vec<f32> = xs.iter().map(|x| engine.push(x, false).unwrap().logit).collect();
+        engine.reset();
+        assert_eq!(engine.n_seen(), 0);
+        let again: Vec<f32> = xs.iter().map(|x| engine.push(x, false).unwrap().logit).collect();
+        assert_eq!(first, again);
+    }
 }
 
 #[test]
