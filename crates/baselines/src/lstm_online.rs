@@ -243,7 +243,7 @@ mod tests {
         let flight = SyntheticFlight::new(600, 14)
             .generate(&[SyntheticAttack { start_s: 20.0, end_s: 28.0, bias_m: [15.0, 5.0, 0.0], absorb_tau_s: None }])
             .unwrap();
-        let (l, threshold) = (lstm.online_window(), lstm.streaming_threshold());
+        let (l, threshold) = (lstm.window.len, lstm.streaming_threshold());
         let mut ours = lstm.net.online(&lstm.norm, l, threshold).expect("the LSTM streams through OnlineLstm");
         let mut candle = WindowedOnline::new(Stitched(lstm), lstm.online_window());
         // The padded opening, the ring's wraps, a reset mid-ring (537 is no multiple of the

@@ -34,7 +34,9 @@ use ekf_residue::{
 };
 use nn_toolkit::loss::masked_bce_with_logits;
 use nn_toolkit::saved::sha256_hex;
-use nn_toolkit::{Batch, Normaliser, TrainConfig, TrainableModel, WindowConfig, Windows, init_vars_seeded, train};
+use nn_toolkit::{
+    Batch, Features, Normaliser, TrainConfig, TrainableModel, WindowConfig, Windows, init_vars_seeded, train,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::common::{fit_channels, labelled_valid};
@@ -107,7 +109,8 @@ const SCORE_BATCH: usize = 64;
 #[serde(deny_unknown_fields)]
 pub struct NeuralConfig {
     /// Window length, training stride and features. Default: QUADFormer's windows, `l = 100`
-    /// at stride 20 of whitened residues (docs/decisions/044-whitened-inputs.md).
+    /// at stride 20 of whitened residues with the drift and absorbed-offset channels
+    /// (docs/decisions/044-whitened-inputs.md, 095-absorbed-offset-channels.md).
     pub window: WindowConfig,
     /// Stride between windows when scoring a series (each step's score is the mean over its
     /// covering windows). Default 50 (`l/2`: every step seen twice, half the cost of stride 25).
@@ -147,7 +150,11 @@ pub struct LstmConfig(pub NeuralConfig);
 impl Default for CnnConfig {
     fn default() -> Self {
         Self(NeuralConfig {
-            window: WindowConfig { stride: 20, ..WindowConfig::default() },
+            window: WindowConfig {
+                stride: 20,
+                features: Features::WhitenedLogDriftAbsorbed,
+                ..WindowConfig::default()
+            },
             score_stride: 50,
             train: TrainConfig {
                 epochs: 30,
@@ -490,14 +497,20 @@ impl<N: PerStepNet> Detector for NeuralDetector<N> {
     /// stitched logit, never smoothed (the batch score averages the windows covering a step,
     /// and may smooth them over later steps, so the two agree only approximately). The LSTM
     /// does so without candle ([`OnlineLstm`], the same logits bit for bit); the CNN through
-    /// [`WindowedOnline`].
+    /// [`WindowedOnline`], which keeps [`Detector::online_window`] steps so that the window's
+    /// features see the history they read.
     fn online(&self) -> Box<dyn OnlineDetector + '_> {
         let (l, threshold) = (self.window.len, self.stream_threshold);
-        self.net.online(&self.norm, l, threshold).unwrap_or_else(|| Box::new(WindowedOnline::new(Stitched(self), l)))
+        self.net
+            .online(&self.norm, l, threshold)
+            .unwrap_or_else(|| Box::new(WindowedOnline::new(Stitched(self), self.online_window())))
     }
 
+    /// The window and the steps before it that its features read
+    /// ([`nn_toolkit::Features::context`]):
+    /// the stitched score of the newest step is that of the window ending at it alone.
     fn online_window(&self) -> usize {
-        self.window.len
+        self.window.len + self.norm.features.context()
     }
 }
 
@@ -529,7 +542,7 @@ impl<N: PerStepNet> Detector for Stitched<'_, N> {
     }
 
     fn online_window(&self) -> usize {
-        self.0.window.len
+        self.0.online_window()
     }
 }
 

@@ -18,6 +18,8 @@
 //! - [`chi2`]: the χ² distribution of NIS (CDF, quantile) for gates and thresholds.
 //! - [`drift`]: GLR evidence of a constant or growing offset in a whitened innovation sequence
 //!   ([`drift::DriftMemory`]), for drift tests and drift-aware detectors.
+//! - [`absorbed`]: sums of a whitened innovation sequence over long horizons
+//!   ([`absorbed::AbsorbedSums`]), which remember an offset the filter has absorbed.
 //! - [`residues`]: alg:alg1 as one call, [`generate_residues`], and the step-by-step
 //!   [`Estimator`] (GPS fusion can be skipped and re-admitted) for the online layers.
 //!
@@ -56,6 +58,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod absorbed;
 pub mod align;
 pub mod chi2;
 pub mod detector;

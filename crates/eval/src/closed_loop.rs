@@ -317,10 +317,15 @@ fn dataset_err(unit: LoopUnit, family: Family) -> impl Fn(crate::dataset::Datase
 }
 
 /// The method configurations of a unit's fits: the matrix's, seeded, with QUADFormer's
-/// attention causal when `MatrixConfig::loop_causal` says so.
+/// attention causal when `MatrixConfig::loop_causal` says so and the networks' features those
+/// of `MatrixConfig::loop_features`.
 fn loop_method_configs(opts: &Options, seed: u64) -> MethodConfigs {
     let mut cfgs = opts.config.methods.seeded(seed);
     cfgs.quadformer.net.causal = opts.config.loop_causal;
+    let features = opts.config.loop_features;
+    cfgs.quadformer.window.features = features.quadformer;
+    cfgs.cnn.0.window.features = features.cnn;
+    cfgs.lstm.0.window.features = features.lstm;
     cfgs
 }
 

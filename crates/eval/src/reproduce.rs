@@ -15,6 +15,7 @@ use std::time::Instant;
 use attack_inject::AmplitudeConfig;
 use ekf_residue::residues::MODEL2_VO_CHANNELS;
 use ekf_residue::{Detector, LabelledResidues};
+use nn_toolkit::Features;
 use quadformer_model::Prior;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -120,6 +121,33 @@ pub struct MatrixConfig {
     /// loop is. Tables I and II keep `methods.quadformer` as it is. Default `true`, chosen on
     /// the loop's validation flights (docs/decisions/092-causal-loop-quadformer.md).
     pub loop_causal: bool,
+    /// The networks' input features in the closed loop (`WindowConfig::features`); Tables I
+    /// and II keep those of `methods`.
+    pub loop_features: LoopFeatures,
+}
+
+/// The input features of the learning methods in the closed loop (`MatrixConfig::loop_features`).
+///
+/// Defaults chosen on the loop's validation flights (docs/decisions/094-drift-channel.md):
+/// QUADFormer reads the drift channel, the CNN and the LSTM the per-step features. The
+/// absorbed-offset channels, the default of all three in Tables I and II, were chosen on the
+/// offline validation flights and have not been tried in the loop
+/// (docs/decisions/095-absorbed-offset-channels.md).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoopFeatures {
+    /// QUADFormer's. Default `WhitenedLogDrift`.
+    pub quadformer: Features,
+    /// The CNN's. Default `WhitenedLog`.
+    pub cnn: Features,
+    /// The LSTM's. Default `WhitenedLog`.
+    pub lstm: Features,
+}
+
+impl Default for LoopFeatures {
+    fn default() -> Self {
+        Self { quadformer: Features::WhitenedLogDrift, cnn: Features::WhitenedLog, lstm: Features::WhitenedLog }
+    }
 }
 
 impl Default for MatrixConfig {
@@ -135,6 +163,7 @@ impl Default for MatrixConfig {
             loop_smooth: vec![0, 2],
             loop_f1_tolerance: None,
             loop_causal: true,
+            loop_features: LoopFeatures::default(),
         }
     }
 }
@@ -148,6 +177,12 @@ impl MatrixConfig {
             steps: SplitSteps::QUICK,
             sweep_sigma: vec![1.0, 5.0],
             ablation_fractions: vec![0.1, 1.0],
+            // The quick networks read the per-step features, in the loop too (decision 094).
+            loop_features: LoopFeatures {
+                quadformer: Features::WhitenedLog,
+                cnn: Features::WhitenedLog,
+                lstm: Features::WhitenedLog,
+            },
             ..Self::default()
         }
     }

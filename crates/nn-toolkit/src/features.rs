@@ -18,19 +18,31 @@
 //!   first (Model I) they are the GPS innovation whitened by its own block, as the GLR drift
 //!   test reads it; where they follow the VO channels (Model II) they are the GPS innovation
 //!   conditioned on the VO innovation, which a GPS spoof leaves clean.
+//! - [`Features::WhitenedLogDriftAbsorbed`]: [`Features::WhitenedLogDrift`] and the
+//!   absorbed-offset channels `ln(1 + a_k(H))` for each horizon of [`ABSORBED_HORIZONS`]: the
+//!   norm of the sum of the same `u` over the newest `H` steps, divided by `√H`
+//!   (`ekf_residue::absorbed`). A filter absorbs a spoofed offset within a few fixes, and in a
+//!   window an onset and an end then look alike; the long sums remember the onset until the
+//!   end cancels it (docs/decisions/095-absorbed-offset-channels.md).
 //!
-//! The drift channel depends on the steps before, so features are computed by a
+//! The drift and absorbed-offset channels depend on the steps before, so features are computed by a
 //! [`FeatureStream`] fed the steps of one series in order; the other maps are per step. A
 //! detector that re-scores a window from its first step (`ekf_residue::WindowedOnline`) gives
 //! the window's first [`Features::context`] steps a shorter history than the flight had.
 
 use ekf_residue::ResidueStep;
+use ekf_residue::absorbed::AbsorbedSums;
 use ekf_residue::drift::{DriftMemory, END_STEPS, LEVEL_STEPS};
 use serde::{Deserialize, Serialize};
 
 /// Longest onset of the drift channel, steps (3 s of GPS fixes at 10 Hz, the textbook window
 /// of the GLR drift test, docs/decisions/093-glr-drift-test.md).
 pub const DRIFT_WINDOW: usize = 30;
+
+/// Horizons of the absorbed-offset channels, steps: 10, 20 and 40 s of GPS fixes at 10 Hz.
+/// The longest spans the longest Attack II interval (docs/decisions/030), so the end of any
+/// such attack finds its onset within it; the shorter ones tell a recent onset from an old one.
+pub const ABSORBED_HORIZONS: [usize; 3] = [100, 200, 400];
 
 /// Huber's clipping constant of the drift channel, in standard deviations (as the GLR test).
 const DRIFT_HUBER_C: f64 = 2.0;
@@ -53,6 +65,9 @@ pub enum Features {
     WhitenedLog,
     /// [`Features::WhitenedLog`] and the drift channel `ln(1 + √g_k)`: `m + 2` features.
     WhitenedLogDrift,
+    /// [`Features::WhitenedLogDrift`] and the absorbed-offset channels `ln(1 + a_k(H))`, one
+    /// per horizon of [`ABSORBED_HORIZONS`]: `m + 2 + 3` features.
+    WhitenedLogDriftAbsorbed,
 }
 
 impl Features {
@@ -62,6 +77,7 @@ impl Features {
             Features::Raw => m,
             Features::Whitened | Features::WhitenedLog => m + 1,
             Features::WhitenedLogDrift => m + 2,
+            Features::WhitenedLogDriftAbsorbed => m + 2 + ABSORBED_HORIZONS.len(),
         }
     }
 
@@ -75,28 +91,39 @@ impl Features {
 
     /// Steps before a step whose residues its features read: 0 for the per-step maps; for the
     /// drift channel the drift window and the end test's steps (`ekf_residue::drift`), beyond
-    /// which the channel depends on earlier steps only through rare end-test clears.
+    /// which the channel depends on earlier steps only through rare end-test clears; for the
+    /// absorbed-offset channels the longest horizon.
     pub fn context(self) -> usize {
+        let drift = DRIFT_WINDOW + END_STEPS + LEVEL_STEPS;
         match self {
-            Features::WhitenedLogDrift => DRIFT_WINDOW + END_STEPS + LEVEL_STEPS,
+            Features::WhitenedLogDrift => drift,
+            Features::WhitenedLogDriftAbsorbed => drift.max(ABSORBED_HORIZONS.iter().copied().max().unwrap_or(0)),
             _ => 0,
         }
     }
 
+    /// Whether the map has the drift channel (and reads the GPS entries of `u`).
+    fn has_drift(self) -> bool {
+        matches!(self, Features::WhitenedLogDrift | Features::WhitenedLogDriftAbsorbed)
+    }
+
     /// Whether feature `i` of `m` residue channels changes sign with the residue,
-    /// `r_k → −r_k` (the whitened channels), rather than staying as it is (`√NIS`, drift).
+    /// `r_k → −r_k` (the whitened channels), rather than staying as it is (`√NIS`, drift,
+    /// absorbed offset: norms).
     pub fn is_odd(self, i: usize, m: usize) -> bool {
         i < m
     }
 }
 
-/// The feature map evaluated over the steps of one series, in order: the drift channel's
-/// memory, for the maps that have one.
+/// The feature map evaluated over the steps of one series, in order: the drift channel's and
+/// the absorbed-offset channels' memories, for the maps that have them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FeatureStream {
     features: Features,
     /// The drift memory and the channels it reads.
     drift: Option<(DriftMemory, Vec<usize>)>,
+    /// The absorbed-offset sums (of the drift channel's channels) and their newest values.
+    absorbed: Option<(AbsorbedSums, Vec<f64>)>,
     /// The read channels' values of a step.
     picked: Vec<f64>,
 }
@@ -104,7 +131,7 @@ pub struct FeatureStream {
 impl FeatureStream {
     /// A stream at the start of a series of `channels`.
     pub fn new(features: Features, channels: &[String]) -> Self {
-        let drift = (features == Features::WhitenedLogDrift).then(|| {
+        let drift = features.has_drift().then(|| {
             let mut idx: Vec<usize> = channels
                 .iter()
                 .enumerate()
@@ -116,13 +143,22 @@ impl FeatureStream {
             }
             (DriftMemory::new(DRIFT_WINDOW, idx.len(), DRIFT_HUBER_C), idx)
         });
-        Self { features, drift, picked: Vec::new() }
+        let absorbed = match (&drift, features) {
+            (Some((_, idx)), Features::WhitenedLogDriftAbsorbed) => {
+                Some((AbsorbedSums::new(&ABSORBED_HORIZONS, idx.len()), vec![0.0; ABSORBED_HORIZONS.len()]))
+            }
+            _ => None,
+        };
+        Self { features, drift, absorbed, picked: Vec::new() }
     }
 
     /// Back to the start of a series.
     pub fn reset(&mut self) {
         if let Some((memory, _)) = &mut self.drift {
             memory.clear();
+        }
+        if let Some((sums, _)) = &mut self.absorbed {
+            sums.clear();
         }
     }
 
@@ -163,26 +199,35 @@ impl FeatureStream {
     }
 
     /// Adds the step's decorrelated residue `u` to the drift memory and returns `g_k`; a
-    /// non-finite `u` is not kept and reads 0.
+    /// non-finite `u` is not kept and reads 0. Adds it to the absorbed-offset sums too, whose
+    /// newest values `a_k(H)` [`FeatureStream::finish_whitened`] reads.
     fn drift_of(&mut self, u: &[f64]) -> f64 {
         let Some((memory, idx)) = &mut self.drift else { return 0.0 };
         self.picked.clear();
         self.picked.extend(idx.iter().map(|&i| u.get(i).copied().unwrap_or(0.0)));
+        if let Some((sums, newest)) = &mut self.absorbed {
+            sums.push(&self.picked, newest);
+        }
         if self.picked.iter().all(|v| v.is_finite()) { memory.push(&self.picked) } else { 0.0 }
     }
 
-    /// `√NIS_k` and `√g_k` after the `m` whitened channels, then the compression of
-    /// [`Features::WhitenedLog`].
+    /// `√NIS_k`, `√g_k` and the `a_k(H)` after the `m` whitened channels, then the compression
+    /// of [`Features::WhitenedLog`].
     fn finish_whitened(&self, m: usize, nis: f64, drift: f64, out: &mut [f64]) {
         if let Some(slot) = out.get_mut(m) {
             *slot = nis.max(0.0).sqrt();
         }
-        if self.features == Features::WhitenedLogDrift
+        if self.features.has_drift()
             && let Some(slot) = out.get_mut(m + 1)
         {
             *slot = drift.max(0.0).sqrt();
         }
-        if matches!(self.features, Features::WhitenedLog | Features::WhitenedLogDrift) {
+        if let Some((_, newest)) = &self.absorbed {
+            for (slot, a) in out.iter_mut().skip(m + 2).zip(newest) {
+                *slot = *a;
+            }
+        }
+        if self.features != Features::Whitened {
             for o in out.iter_mut() {
                 *o = o.signum() * o.abs().ln_1p();
             }
@@ -241,19 +286,46 @@ mod tests {
         assert_eq!(out[4], 0.0);
     }
 
+    /// The absorbed-offset channels follow the drift map's channels and read `ln(1 + a_k(H))`
+    /// of the GPS channels; a jump in the GPS residue is remembered by them.
+    #[test]
+    fn the_absorbed_channels_extend_the_drift_map() {
+        let series = drifting(50, 20);
+        let features = Features::WhitenedLogDriftAbsorbed;
+        assert_eq!(features.dim(3), 3 + 2 + ABSORBED_HORIZONS.len());
+        assert!(!features.is_odd(5, 3));
+        let (mut stream, mut drift) = (
+            FeatureStream::new(features, series.channels()),
+            FeatureStream::new(Features::WhitenedLogDrift, series.channels()),
+        );
+        let (mut out, mut prefix) = (vec![0.0; features.dim(3)], vec![0.0; 5]);
+        let mut sums = AbsorbedSums::new(&ABSORBED_HORIZONS, 2);
+        let mut a = vec![0.0; ABSORBED_HORIZONS.len()];
+        for step in series.steps() {
+            stream.compute(&step, &mut out);
+            drift.compute(&step, &mut prefix);
+            assert_eq!(&out[..5], &prefix[..]);
+            sums.push(&step.r_k[..2], &mut a);
+            for (o, a) in out[5..].iter().zip(&a) {
+                assert!((o - a.ln_1p()).abs() < 1e-12, "{out:?}");
+            }
+        }
+        assert!(out[5] > 1.0, "{out:?}");
+    }
+
     #[test]
     fn from_whitened_equals_compute_step_by_step() {
         let series = drifting(50, 5);
-        let (mut a, mut b) = (
-            FeatureStream::new(Features::WhitenedLogDrift, series.channels()),
-            FeatureStream::new(Features::WhitenedLogDrift, series.channels()),
-        );
-        let (mut x, mut y) = (vec![0.0; 5], vec![0.0; 5]);
-        for step in series.steps() {
-            a.compute(&step, &mut x);
-            let u = step.decorrelated().unwrap();
-            b.from_whitened(&u, &u, step.nis, &mut y);
-            assert_eq!(x, y);
+        for features in [Features::WhitenedLogDrift, Features::WhitenedLogDriftAbsorbed] {
+            let (mut a, mut b) =
+                (FeatureStream::new(features, series.channels()), FeatureStream::new(features, series.channels()));
+            let (mut x, mut y) = (vec![0.0; features.dim(3)], vec![0.0; features.dim(3)]);
+            for step in series.steps() {
+                a.compute(&step, &mut x);
+                let u = step.decorrelated().unwrap();
+                b.from_whitened(&u, &u, step.nis, &mut y);
+                assert_eq!(x, y);
+            }
         }
     }
 
@@ -262,7 +334,7 @@ mod tests {
     #[test]
     fn a_malformed_step_does_not_panic() {
         let channels: Vec<String> = vec!["gps_x".into(), "gps_y".into()];
-        let mut stream = FeatureStream::new(Features::WhitenedLogDrift, &channels);
+        let mut stream = FeatureStream::new(Features::WhitenedLogDriftAbsorbed, &channels);
         for s_k in [[0.0; 9], [f64::NAN; 9]] {
             let step = ResidueStep { t: 0.0, r_k: &[1.0, 2.0, 3.0], s_k: &s_k, nis: 1.0 };
             let mut out = [0.0; 2];

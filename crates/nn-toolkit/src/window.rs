@@ -734,7 +734,13 @@ mod tests {
         let r: Vec<(f64, f64)> =
             (0..12).map(|k| ((k as f64 * 0.7).sin() + 0.3, (k as f64 * 0.3).cos() - 0.2)).collect();
         let neg: Vec<(f64, f64)> = r.iter().map(|&(a, b)| (-a, -b)).collect();
-        for features in [Features::Raw, Features::Whitened, Features::WhitenedLog, Features::WhitenedLogDrift] {
+        for features in [
+            Features::Raw,
+            Features::Whitened,
+            Features::WhitenedLog,
+            Features::WhitenedLogDrift,
+            Features::WhitenedLogDriftAbsorbed,
+        ] {
             let norm = Normaliser::fit(&split_of(series_with_cov(&r, 1.0)), features).unwrap();
             let cfg = WindowConfig { len: 4, stride: 4, features };
             let w = Windows::from_split(&split_of(series_with_cov(&r, 1.0)), &norm, &cfg).unwrap();
@@ -821,10 +827,15 @@ mod tests {
         let r: Vec<(f64, f64)> =
             (0..n).map(|k| (0.05 * k as f64 + (k as f64 * 0.7).sin(), (k as f64 * 0.3).cos())).collect();
         let q: Vec<(f64, f64)> = (0..n).map(|k| ((k as f64 * 0.2).cos(), -0.04 * k as f64)).collect();
-        let features = Features::WhitenedLogDrift;
+        for features in [Features::WhitenedLogDrift, Features::WhitenedLogDriftAbsorbed] {
+            mixed_window_is_the_window_of_the_mixed_flight(&r, &q, features);
+        }
+    }
+
+    fn mixed_window_is_the_window_of_the_mixed_flight(r: &[(f64, f64)], q: &[(f64, f64)], features: Features) {
         let split = LabelledResidues::new(vec![
-            LabelledSeries::new(series_with_cov(&r, 1.0), None).unwrap(),
-            LabelledSeries::new(series_with_cov(&q, 1.0), None).unwrap(),
+            LabelledSeries::new(series_with_cov(r, 1.0), None).unwrap(),
+            LabelledSeries::new(series_with_cov(q, 1.0), None).unwrap(),
         ])
         .unwrap();
         let cfg = WindowConfig { len: 12, stride: 12, features };
@@ -835,15 +846,15 @@ mod tests {
         // last, with more than `Features::context` steps before it; window 9 the second's.
         let c = 0.6f64;
         let s = (1.0 - c * c).sqrt();
-        let mixed_r: Vec<(f64, f64)> = r.iter().zip(&q).map(|(x, y)| (c * x.0 + s * y.0, c * x.1 + s * y.1)).collect();
+        let mixed_r: Vec<(f64, f64)> = r.iter().zip(q).map(|(x, y)| (c * x.0 + s * y.0, c * x.1 + s * y.1)).collect();
         let want = Windows::from_split(&split_of(series_with_cov(&mixed_r, 1.0)), &norm, &cfg).unwrap();
         let got = w.batch_augmented(&[4], &[], &[Some(Mix { with: 9, weight: c as f32 })], &Device::Cpu).unwrap();
         let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         let (g, e) = (flat(&got.x), flat(&want.batch(&[4], &Device::Cpu).unwrap().x));
         assert!(g.iter().zip(&e).all(|(u, v)| (u - v).abs() < 1e-4), "{g:?} vs {e:?}");
-        // The drift channel is not constant there: the test reads it.
+        // The last channel (drift or longest sum) is not constant there: the test reads it.
         let dim = norm.dim();
-        assert!(e.chunks_exact(dim).any(|row| row[dim - 1] != e[dim - 1]));
+        assert!(e.chunks_exact(dim).any(|row| row[dim - 1] != e[dim - 1]), "{features:?}");
     }
 
     proptest! {
@@ -855,11 +866,16 @@ mod tests {
             c in 0.01f64..100.0,
         ) {
             let (base, scaled) = (series_with_cov(&r, 1.0), series_with_cov(&r, c));
-            for features in [Features::Whitened, Features::WhitenedLog, Features::WhitenedLogDrift] {
+            for features in [
+                Features::Whitened,
+                Features::WhitenedLog,
+                Features::WhitenedLogDrift,
+                Features::WhitenedLogDriftAbsorbed,
+            ] {
                 let (mut sa, mut sb) =
                     (FeatureStream::new(features, base.channels()), FeatureStream::new(features, base.channels()));
                 for (a, b) in base.steps().zip(scaled.steps()) {
-                    let (mut fa, mut fb) = ([0.0f64; 4], [0.0f64; 4]);
+                    let (mut fa, mut fb) = (vec![0.0f64; features.dim(2)], vec![0.0f64; features.dim(2)]);
                     sa.compute(&a, &mut fa);
                     sb.compute(&b, &mut fb);
                     for (x, y) in fa.iter().zip(&fb) {

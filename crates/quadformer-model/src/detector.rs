@@ -132,15 +132,20 @@ pub struct QuadFormerConfig {
 
 impl Default for QuadFormerConfig {
     /// The configuration chosen on validation (docs/decisions/004-training-budget.md,
-    /// 044-whitened-inputs.md and 094-drift-channel.md): windows of 100 whitened steps with
-    /// the GLR drift channel every 20 steps, every window in
+    /// 044-whitened-inputs.md, 094-drift-channel.md and 095-absorbed-offset-channels.md):
+    /// windows of 100 whitened steps with the GLR drift channel and the absorbed-offset
+    /// channels every 20 steps, every window in
     /// every epoch with half of each epoch's windows drawn from labelled flights, each window
     /// mirrored with probability ½ and each labelled one mixed with another with probability ½
     /// (docs/decisions/047-mixed-windows.md), up to 20 epochs at a learning rate that falls by
     /// 0.85 per epoch, stopped after 3 epochs without a better validation F1.
     fn default() -> Self {
         Self {
-            window: WindowConfig { stride: 20, features: Features::WhitenedLogDrift, ..WindowConfig::default() },
+            window: WindowConfig {
+                stride: 20,
+                features: Features::WhitenedLogDriftAbsorbed,
+                ..WindowConfig::default()
+            },
             net: NetConfig::default(),
             loss: LossConfig::default(),
             train: TrainConfig {
