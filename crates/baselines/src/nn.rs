@@ -285,7 +285,7 @@ pub struct NeuralDetector<N> {
     pub(crate) net: N,
     // Keeps the trained variables alive alongside the network that reads them.
     _varmap: VarMap,
-    window: WindowConfig,
+    pub(crate) window: WindowConfig,
     score_stride: usize,
     /// Half-width of the centred moving mean of the offline scores, chosen on validation.
     smooth: usize,

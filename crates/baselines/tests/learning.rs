@@ -105,6 +105,20 @@ fn cnn_flags_a_gross_gps_bias() -> TestResult {
     check_detector(&cnn, false)
 }
 
+/// With the absorbed-offset channels, whose sums reach 400 steps back, the CNN's online
+/// detector keeps that history before its window: it gives what `score_streaming` computes
+/// over the whole flight (`check_detector` compares 1,000 steps).
+#[test]
+fn cnn_with_the_absorbed_channels_streams_what_it_scores() -> TestResult {
+    let train = split(&[101, 102], 2400)?;
+    let valid = split(&[103], 2400)?;
+    let mut cfg = small(CnnConfig::default().0);
+    cfg.window.features = nn_toolkit::Features::WhitenedLogDriftAbsorbed;
+    let cnn = CnnConfig(cfg).fit(&train, &valid)?;
+    assert_eq!(cnn.online_window(), 20 + nn_toolkit::Features::WhitenedLogDriftAbsorbed.context());
+    check_detector(&cnn, false)
+}
+
 #[test]
 fn lstm_flags_a_gross_gps_bias() -> TestResult {
     let train = split(&[101, 102], 2400)?;

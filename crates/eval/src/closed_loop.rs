@@ -1271,7 +1271,7 @@ mod tests {
     const UNIT: LoopUnit = LoopUnit { model: UavModel::I, noise: NoiseModel::Exponential, seed: 0 };
 
     #[test]
-    fn the_loop_quadformer_is_causal_unless_configured_otherwise() {
+    fn the_loop_networks_are_configured_by_the_loop_settings() {
         let mut opts = Options {
             config: crate::reproduce::MatrixConfig::default(),
             quick: false,
@@ -1288,6 +1288,15 @@ mod tests {
         assert_eq!(cfgs.quadformer.train.seed, opts.config.methods.seeded(3).quadformer.train.seed);
         opts.config.loop_causal = false;
         assert!(!loop_method_configs(&opts, 3).quadformer.net.causal);
+        // The networks read the loop's features (decision 094), not the tables' (decision 095).
+        use nn_toolkit::Features;
+        assert_eq!(opts.config.methods.quadformer.window.features, Features::WhitenedLogDriftAbsorbed);
+        assert_eq!(opts.config.methods.lstm.0.window.features, Features::WhitenedLogDriftAbsorbed);
+        let window =
+            |c: &MethodConfigs| (c.quadformer.window.features, c.cnn.0.window.features, c.lstm.0.window.features);
+        assert_eq!(window(&cfgs), (Features::WhitenedLogDrift, Features::WhitenedLog, Features::WhitenedLog));
+        opts.config.loop_features.cnn = Features::WhitenedLogDriftAbsorbed;
+        assert_eq!(loop_method_configs(&opts, 3).cnn.0.window.features, Features::WhitenedLogDriftAbsorbed);
     }
 
     #[test]
