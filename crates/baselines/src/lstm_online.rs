@@ -14,7 +14,9 @@
 //! through [`crate::lstm`]'s own forward; the additions in candle's order
 //! (`(x W_ihᵀ + h W_hhᵀ) + b`). So a decision is bit for bit the one
 //! [`ekf_residue::WindowedOnline`] computes by re-scoring the window with candle
-//! (`streaming_lstm_matches_the_windowed_candle_pass`), at a fraction of its cost: candle
+//! (`streaming_lstm_matches_the_windowed_candle_pass`), for the per-step feature maps; for
+//! maps with a history (drift, absorbed offset) the two compute the features over different
+//! spans of the flight, and agree up to rounding. It does so at a fraction of the cost: candle
 //! spends most of a one-row step on creating and dropping tensors. Each new step is checked
 //! once, on arrival ([`ekf_residue::checked_step_nis`]).
 
@@ -267,7 +269,12 @@ mod tests {
     fn streaming_logits_are_candle_logits_for_any_hidden_size() {
         let data = split(&[21]);
         let flight = SyntheticFlight::new(120, 22).generate(&[]).unwrap();
-        for (features, h) in [(Features::default(), 8), (Features::default(), 64), (Features::WhitenedLogDrift, 65)] {
+        for (features, h) in [
+            (Features::default(), 8),
+            (Features::default(), 64),
+            (Features::WhitenedLogDrift, 65),
+            (Features::WhitenedLogDriftAbsorbed, 16),
+        ] {
             let norm = Normaliser::fit(&data, features).unwrap();
             let (m, l) = (norm.dim(), 12);
             let varmap = VarMap::new();

@@ -268,8 +268,8 @@ impl PerStepNet for LstmNet {
         self.head.forward(&h)?.squeeze(D::Minus1)
     }
 
-    /// [`OnlineLstm`]: the recurrence without candle, bit for bit the same logits; `None` if
-    /// the weights cannot be read into it.
+    /// [`OnlineLstm`]: the recurrence without candle, the same logits (bit for bit for the
+    /// per-step feature maps); `None` if the weights cannot be read into it.
     fn online<'a>(&self, norm: &'a Normaliser, l: usize, threshold: f64) -> Option<Box<dyn OnlineDetector + 'a>> {
         let online = OnlineLstm::new(self.weights().ok()?, norm, l, threshold).ok()?;
         Some(Box::new(online))

@@ -1295,6 +1295,11 @@ mod tests {
         let window =
             |c: &MethodConfigs| (c.quadformer.window.features, c.cnn.0.window.features, c.lstm.0.window.features);
         assert_eq!(window(&cfgs), (Features::WhitenedLogDrift, Features::WhitenedLog, Features::WhitenedLog));
+        let quick = crate::reproduce::MatrixConfig::quick().loop_features;
+        assert_eq!(
+            (quick.quadformer, quick.cnn, quick.lstm),
+            (Features::WhitenedLog, Features::WhitenedLog, Features::WhitenedLog)
+        );
         opts.config.loop_features.cnn = Features::WhitenedLogDriftAbsorbed;
         assert_eq!(loop_method_configs(&opts, 3).cnn.0.window.features, Features::WhitenedLogDriftAbsorbed);
     }

@@ -40,8 +40,9 @@ use serde::{Deserialize, Serialize};
 pub const DRIFT_WINDOW: usize = 30;
 
 /// Horizons of the absorbed-offset channels, steps: 10, 20 and 40 s of GPS fixes at 10 Hz.
-/// The longest spans the longest Attack II interval (docs/decisions/030), so the end of any
-/// such attack finds its onset within it; the shorter ones tell a recent onset from an old one.
+/// The longest is as long as the longest Attack II interval (docs/decisions/030), so the end
+/// of any shorter attack finds its onset within it; the shorter ones tell a recent onset from
+/// an old one.
 pub const ABSORBED_HORIZONS: [usize; 3] = [100, 200, 400];
 
 /// Huber's clipping constant of the drift channel, in standard deviations (as the GLR test).
@@ -311,6 +312,13 @@ mod tests {
             }
         }
         assert!(out[5] > 1.0, "{out:?}");
+        // A reset stream starts the sums again.
+        stream.reset();
+        let mut fresh = FeatureStream::new(features, series.channels());
+        let mut first = vec![0.0; features.dim(3)];
+        stream.compute(&series.step(30).unwrap(), &mut out);
+        fresh.compute(&series.step(30).unwrap(), &mut first);
+        assert_eq!(out, first);
     }
 
     #[test]

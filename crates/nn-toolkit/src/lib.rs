@@ -1,7 +1,8 @@
 //! A CPU neural-network toolkit on candle, shared by QUADFormer (`quadformer-model`) and the
 //! CNN/LSTM baselines so that every learning method sees the same data and loop:
 //! - [`features`]: what a network reads per step ([`Features`]: raw, whitened by `S_k`, with
-//!   the GLR drift channel) and its step-by-step evaluation over a series ([`FeatureStream`]).
+//!   the GLR drift channel (docs/decisions/094) and the absorbed-offset channels
+//!   (docs/decisions/095)) and its step-by-step evaluation over a series ([`FeatureStream`]).
 //! - [`window`]: [`Normaliser`] (per-channel standardisation fitted on training data, saved
 //!   with a model), [`Windows`] (windows of `l` steps × `m` channels with per-step labels and a
 //!   label-known mask, configurable stride, [`Windows::batch`] → [`Batch`] tensors) and

@@ -823,11 +823,12 @@ mod tests {
     /// window too: mid-flight, the mix is the window of the mixed flight.
     #[test]
     fn a_mixed_window_carries_the_drift_of_the_steps_before_it() {
-        let n = 60;
-        let r: Vec<(f64, f64)> =
-            (0..n).map(|k| (0.05 * k as f64 + (k as f64 * 0.7).sin(), (k as f64 * 0.3).cos())).collect();
-        let q: Vec<(f64, f64)> = (0..n).map(|k| ((k as f64 * 0.2).cos(), -0.04 * k as f64)).collect();
         for features in [Features::WhitenedLogDrift, Features::WhitenedLogDriftAbsorbed] {
+            // The flights' last windows have more than `Features::context` steps before them.
+            let n = features.context() + 50;
+            let r: Vec<(f64, f64)> =
+                (0..n).map(|k| (0.05 * k as f64 + (k as f64 * 0.7).sin(), (k as f64 * 0.3).cos())).collect();
+            let q: Vec<(f64, f64)> = (0..n).map(|k| ((k as f64 * 0.2).cos(), -0.04 * k as f64)).collect();
             mixed_window_is_the_window_of_the_mixed_flight(&r, &q, features);
         }
     }
@@ -842,16 +843,18 @@ mod tests {
         let norm = Normaliser::fit(&split, features).unwrap();
         let w = Windows::for_training(&split, &norm, &cfg).unwrap();
         assert!(w.can_mix());
-        // Windows start at 0, 12, 24, 36, 48 in each flight: window 4 is the first flight's
-        // last, with more than `Features::context` steps before it; window 9 the second's.
+        // The flights are as long: window `per − 1` is the first flight's last, window
+        // `2·per − 1` the second's, both ending at the flight's last step.
+        let per = w.len() / 2;
         let c = 0.6f64;
         let s = (1.0 - c * c).sqrt();
         let mixed_r: Vec<(f64, f64)> = r.iter().zip(q).map(|(x, y)| (c * x.0 + s * y.0, c * x.1 + s * y.1)).collect();
         let want = Windows::from_split(&split_of(series_with_cov(&mixed_r, 1.0)), &norm, &cfg).unwrap();
-        let got = w.batch_augmented(&[4], &[], &[Some(Mix { with: 9, weight: c as f32 })], &Device::Cpu).unwrap();
+        let mix = Mix { with: 2 * per - 1, weight: c as f32 };
+        let got = w.batch_augmented(&[per - 1], &[], &[Some(mix)], &Device::Cpu).unwrap();
         let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        let (g, e) = (flat(&got.x), flat(&want.batch(&[4], &Device::Cpu).unwrap().x));
-        assert!(g.iter().zip(&e).all(|(u, v)| (u - v).abs() < 1e-4), "{g:?} vs {e:?}");
+        let (g, e) = (flat(&got.x), flat(&want.batch(&[per - 1], &Device::Cpu).unwrap().x));
+        assert!(g.iter().zip(&e).all(|(u, v)| (u - v).abs() < 1e-4), "{features:?}: {g:?} vs {e:?}");
         // The last channel (drift or longest sum) is not constant there: the test reads it.
         let dim = norm.dim();
         assert!(e.chunks_exact(dim).any(|row| row[dim - 1] != e[dim - 1]), "{features:?}");
