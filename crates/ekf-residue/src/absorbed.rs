@@ -31,12 +31,16 @@ use std::collections::VecDeque;
 pub struct AbsorbedSums {
     /// Horizons, steps (each at least 1).
     horizons: Vec<usize>,
-    /// The newest innovations, newest last, as many as the longest horizon.
-    history: VecDeque<Vec<f64>>,
-    /// `Σ` over each horizon's newest innovations, per channel.
-    sums: Vec<Vec<f64>>,
+    /// The longest horizon: how many innovations are kept.
+    longest: usize,
     /// Channels of an innovation.
     n: usize,
+    /// The kept innovations, `n` values each, newest last.
+    history: VecDeque<f64>,
+    /// Number of innovations in `history`.
+    kept: usize,
+    /// `Σ` over each horizon's newest innovations, per channel.
+    sums: Vec<Vec<f64>>,
 }
 
 impl AbsorbedSums {
@@ -45,17 +49,20 @@ impl AbsorbedSums {
     pub fn new(horizons: &[usize], n: usize) -> Self {
         let horizons: Vec<usize> = horizons.iter().map(|&h| h.max(1)).collect();
         let longest = horizons.iter().copied().max().unwrap_or(1);
-        Self { sums: vec![vec![0.0; n]; horizons.len()], history: VecDeque::with_capacity(longest + 1), horizons, n }
-    }
-
-    /// The horizons, steps.
-    pub fn horizons(&self) -> &[usize] {
-        &self.horizons
+        Self {
+            sums: vec![vec![0.0; n]; horizons.len()],
+            history: VecDeque::with_capacity((longest + 1) * n),
+            kept: 0,
+            horizons,
+            longest,
+            n,
+        }
     }
 
     /// Forgets every innovation.
     pub fn clear(&mut self) {
         self.history.clear();
+        self.kept = 0;
         for s in &mut self.sums {
             s.fill(0.0);
         }
@@ -65,26 +72,25 @@ impl AbsorbedSums {
     /// one is not kept) and writes `a_k(H)` of the module doc for each horizon into `out` (as
     /// many as both hold). Before any innovation is kept every `a_k` reads 0.
     pub fn push(&mut self, u: &[f64], out: &mut [f64]) {
-        let u: Vec<f64> = (0..self.n).map(|i| u.get(i).copied().unwrap_or(0.0)).collect();
-        if u.iter().all(|v| v.is_finite()) {
-            self.history.push_back(u);
-            let len = self.history.len();
+        let n = self.n;
+        let value = |i: usize| u.get(i).copied().unwrap_or(0.0);
+        if (0..n).all(|i| value(i).is_finite()) {
+            self.history.extend((0..n).map(value));
+            self.kept += 1;
             for (&h, sum) in self.horizons.iter().zip(&mut self.sums) {
-                let newest = &self.history[len - 1];
                 // The innovation that leaves this horizon, if any.
-                let leaving = len.checked_sub(h + 1).map(|i| &self.history[i]);
+                let leaving = self.kept.checked_sub(h + 1);
                 for (i, s) in sum.iter_mut().enumerate() {
-                    *s += newest[i] - leaving.map_or(0.0, |l| l[i]);
+                    *s += self.history[(self.kept - 1) * n + i] - leaving.map_or(0.0, |j| self.history[j * n + i]);
                 }
             }
-            let longest = self.horizons.iter().copied().max().unwrap_or(1);
-            if len > longest {
-                self.history.pop_front();
+            if self.kept > self.longest {
+                self.history.drain(..n);
+                self.kept -= 1;
             }
         }
-        let len = self.history.len();
         for ((&h, sum), o) in self.horizons.iter().zip(&self.sums).zip(out.iter_mut()) {
-            let count = h.min(len);
+            let count = h.min(self.kept);
             #[allow(clippy::cast_precision_loss)]
             let norm = sum.iter().map(|s| s * s).sum::<f64>().sqrt();
             *o = if count == 0 { 0.0 } else { norm / (count as f64).sqrt() };
