@@ -330,6 +330,19 @@ impl<N: PerStepNet> NeuralDetector<N> {
         Ok(sw.stitch(&logits)?)
     }
 
+    /// The logit of the last step of `series` at the last position of the window ending at it.
+    fn score_newest_inner(&self, series: &ResidueSeries) -> Result<f64> {
+        let l = self.window.len;
+        let mut windows = Windows::empty(l, self.norm.dim());
+        windows.push_newest(series, &self.norm)?;
+        let batch = windows.batch(&[0], &Device::Cpu)?;
+        let z = self.net.logits(&batch.x).map_err(candle_err("streaming scoring"))?;
+        let z = z.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(candle_err("streaming scoring"))?;
+        z.get(l - 1)
+            .map(|&v| f64::from(v))
+            .ok_or_else(|| BaselineError::Detect(DetectError::Numerical { what: "empty score window".into() }))
+    }
+
     /// The streaming logits: step `k` scored at the last position of the window that ends at
     /// `k`, front-padded for `k < l − 1` as [`ekf_residue::WindowedOnline`] pads, so what
     /// [`Detector::online`] gives, to rounding: here the windows run in batches.
@@ -543,6 +556,13 @@ impl<N: PerStepNet> Detector for Stitched<'_, N> {
 
     fn online_window(&self) -> usize {
         self.0.online_window()
+    }
+
+    /// The newest step's stitched logit is that of the one window ending at it
+    /// ([`nn_toolkit::SeriesWindows::newest`]), so only that window is scored.
+    fn score_newest(&self, series: &ResidueSeries) -> Result<f64, DetectError> {
+        ekf_residue::check_channels(&self.0.channels, series)?;
+        self.0.score_newest_inner(series).map_err(into_detect_error)
     }
 }
 

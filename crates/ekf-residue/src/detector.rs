@@ -77,6 +77,16 @@ pub trait Detector: Send + Sync {
         Box::new(Rethresholded { inner: self.online(), threshold })
     }
 
+    /// The score of the last step of `series`: what [`WindowedOnline`] reports on the window
+    /// it holds. The default scores the whole series and keeps the last score; a detector
+    /// that can score that step alone overrides it.
+    ///
+    /// # Errors
+    /// As [`Detector::score`]; [`DetectError::Numerical`] for an empty series.
+    fn score_newest(&self, series: &ResidueSeries) -> Result<f64, DetectError> {
+        self.score(series)?.last().copied().ok_or_else(|| DetectError::Numerical { what: "empty score window".into() })
+    }
+
     /// Number of past steps the default [`Detector::online`] keeps. Default 100 (the paper's
     /// window length `l`, sec:attack_detector).
     fn online_window(&self) -> usize {
@@ -268,10 +278,15 @@ impl<T: Detector + ?Sized> Detector for &T {
     fn online_window(&self) -> usize {
         (**self).online_window()
     }
+
+    fn score_newest(&self, series: &ResidueSeries) -> Result<f64, DetectError> {
+        (**self).score_newest(series)
+    }
 }
 
 /// Streaming adapter that re-scores a sliding window of recent steps with a batch
-/// [`Detector`] (usually a reference to one) and reports the newest step.
+/// [`Detector`] (usually a reference to one) and reports the newest step
+/// ([`Detector::score_newest`]).
 pub struct WindowedOnline<D: Detector> {
     detector: D,
     window: usize,
@@ -315,9 +330,7 @@ impl<D: Detector> OnlineDetector for WindowedOnline<D> {
             self.s.iter().flatten().copied().collect(),
             self.nis.iter().copied().collect(),
         );
-        let scores = self.detector.score(&series)?;
-        let score =
-            scores.last().copied().ok_or_else(|| DetectError::Numerical { what: "empty score window".into() })?;
+        let score = self.detector.score_newest(&series)?;
         Ok(OnlineDecision { score, alarm: score > self.detector.streaming_threshold() })
     }
 

@@ -247,6 +247,15 @@ impl SeriesWindows {
         Self { starts, n_steps, pad, len }
     }
 
+    /// The one window that ends at the last of `n_steps` steps (front-padded when
+    /// `n_steps < len`): the only window covering that step, so its score there is the
+    /// step's stitched score. No window for an empty series.
+    pub fn newest(n_steps: usize, len: usize) -> Self {
+        let pad = len.saturating_sub(n_steps);
+        let starts = if n_steps == 0 { Vec::new() } else { vec![n_steps + pad - len] };
+        Self { starts, n_steps, pad, len }
+    }
+
     /// Per-step scores of the series: the mean over the covering windows of the
     /// per-window-step scores `window_scores` (`starts.len() × l`, row-major).
     ///
@@ -359,6 +368,27 @@ impl Windows {
         norm: &Normaliser,
         stride: usize,
     ) -> Result<SeriesWindows> {
+        self.push_windows(series, labels, norm, SeriesWindows::new(series.len(), self.len, stride))
+    }
+
+    /// Appends the window that ends at the last step of `series` ([`SeriesWindows::newest`]),
+    /// its features computed over the whole series, as [`Windows::push_series`] computes
+    /// them: what a streaming decision on that step reads.
+    ///
+    /// # Errors
+    /// As [`Windows::push_series`].
+    pub fn push_newest(&mut self, series: &ResidueSeries, norm: &Normaliser) -> Result<SeriesWindows> {
+        self.push_windows(series, None, norm, SeriesWindows::newest(series.len(), self.len))
+    }
+
+    /// Appends the windows `sw` of one series.
+    fn push_windows(
+        &mut self,
+        series: &ResidueSeries,
+        labels: Option<&[bool]>,
+        norm: &Normaliser,
+        sw: SeriesWindows,
+    ) -> Result<SeriesWindows> {
         norm.check_series(series)?;
         if norm.dim() != self.dim {
             return Err(NnError::Data {
@@ -381,7 +411,6 @@ impl Windows {
             }
         }
         let (l, m) = (self.len, self.dim);
-        let sw = SeriesWindows::new(series.len(), l, stride);
         if sw.starts.is_empty() {
             return Ok(sw);
         }
@@ -897,6 +926,27 @@ mod tests {
             for (k, v) in out.iter().enumerate() {
                 prop_assert!((v - (k + sw.pad) as f64).abs() < 1e-9);
             }
+        }
+
+        /// The newest window is the last of every stride's windows and the only one covering
+        /// the last step, so its score there is the stitched score; `push_newest` copies the
+        /// rows `push_series` gives that window.
+        #[test]
+        fn the_newest_window_alone_covers_the_last_step(n in 1usize..60, l in 2usize..20, stride in 1usize..25) {
+            let (all, newest) = (SeriesWindows::new(n, l, stride), SeriesWindows::newest(n, l));
+            prop_assert_eq!((newest.n_steps, newest.pad, newest.len), (all.n_steps, all.pad, all.len));
+            prop_assert_eq!(newest.starts.as_slice(), &all.starts[all.starts.len() - 1..]);
+            let last = n + all.pad - 1;
+            prop_assert_eq!(all.starts.iter().filter(|&&s0| s0 <= last && last < s0 + l).count(), 1);
+
+            let s = series(n);
+            let norm = Normaliser::fit(&split_of(series(80)), Features::WhitenedLog).unwrap();
+            let (mut w_all, mut w_new) = (Windows::empty(l, norm.dim()), Windows::empty(l, norm.dim()));
+            w_all.push_series(&s, None, &norm, stride).unwrap();
+            w_new.push_newest(&s, &norm).unwrap();
+            prop_assert_eq!(w_new.len(), 1);
+            let rows = l * norm.dim();
+            prop_assert_eq!(&w_new.x[..], &w_all.x[w_all.x.len() - rows..]);
         }
     }
 }
