@@ -1288,13 +1288,16 @@ mod tests {
         assert_eq!(cfgs.quadformer.train.seed, opts.config.methods.seeded(3).quadformer.train.seed);
         opts.config.loop_causal = false;
         assert!(!loop_method_configs(&opts, 3).quadformer.net.causal);
-        // The networks read the loop's features (decision 094), not the tables' (decision 095).
+        // The networks read the loop's features (decisions 094 and 095), not the tables'.
         use nn_toolkit::Features;
         assert_eq!(opts.config.methods.quadformer.window.features, Features::WhitenedLogDriftAbsorbed);
-        assert_eq!(opts.config.methods.lstm.0.window.features, Features::WhitenedLogDriftAbsorbed);
+        assert_eq!(opts.config.methods.cnn.0.window.features, Features::WhitenedLogDriftAbsorbed);
         let window =
             |c: &MethodConfigs| (c.quadformer.window.features, c.cnn.0.window.features, c.lstm.0.window.features);
-        assert_eq!(window(&cfgs), (Features::WhitenedLogDrift, Features::WhitenedLog, Features::WhitenedLog));
+        assert_eq!(
+            window(&cfgs),
+            (Features::WhitenedLogDriftAbsorbed, Features::WhitenedLog, Features::WhitenedLogDriftAbsorbed)
+        );
         let quick = crate::reproduce::MatrixConfig::quick().loop_features;
         assert_eq!(
             (quick.quadformer, quick.cnn, quick.lstm),

@@ -128,26 +128,27 @@ pub struct MatrixConfig {
 
 /// The input features of the learning methods in the closed loop (`MatrixConfig::loop_features`).
 ///
-/// Defaults chosen on the loop's validation flights (docs/decisions/094-drift-channel.md):
-/// QUADFormer reads the drift channel, the CNN and the LSTM the per-step features. The
-/// absorbed-offset channels, the default of all three in Tables I and II, were chosen on the
-/// offline validation flights; in the loop they raised QUADFormer's validation F1 on the four
-/// seed-0 units, and become its loop default with the run that regenerates Table III
-/// (docs/decisions/095-absorbed-offset-channels.md).
+/// Defaults chosen on the loop's validation flights: QUADFormer and the LSTM read the
+/// absorbed-offset channels (docs/decisions/095-absorbed-offset-channels.md), the CNN the
+/// per-step features (docs/decisions/094-drift-channel.md).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LoopFeatures {
-    /// QUADFormer's. Default `WhitenedLogDrift`.
+    /// QUADFormer's. Default `WhitenedLogDriftAbsorbed`.
     pub quadformer: Features,
     /// The CNN's. Default `WhitenedLog`.
     pub cnn: Features,
-    /// The LSTM's. Default `WhitenedLog`.
+    /// The LSTM's. Default `WhitenedLogDriftAbsorbed`.
     pub lstm: Features,
 }
 
 impl Default for LoopFeatures {
     fn default() -> Self {
-        Self { quadformer: Features::WhitenedLogDrift, cnn: Features::WhitenedLog, lstm: Features::WhitenedLog }
+        Self {
+            quadformer: Features::WhitenedLogDriftAbsorbed,
+            cnn: Features::WhitenedLog,
+            lstm: Features::WhitenedLogDriftAbsorbed,
+        }
     }
 }
 
