@@ -332,29 +332,16 @@ impl<N: PerStepNet> NeuralDetector<N> {
 
     /// The logit of the last step of `series` at the last position of the window ending at it.
     fn score_newest_inner(&self, series: &ResidueSeries) -> Result<f64> {
-        let l = self.window.len;
-        let mut windows = Windows::empty(l, self.norm.dim());
+        let mut windows = Windows::empty(self.window.len, self.norm.dim());
         windows.push_newest(series, &self.norm)?;
-        let batch = windows.batch(&[0], &Device::Cpu)?;
-        let z = self.net.logits(&batch.x).map_err(candle_err("streaming scoring"))?;
-        let z = z.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(candle_err("streaming scoring"))?;
-        z.get(l - 1)
-            .map(|&v| f64::from(v))
+        self.last_logits(&windows)?
+            .pop()
             .ok_or_else(|| BaselineError::Detect(DetectError::Numerical { what: "empty score window".into() }))
     }
 
-    /// The streaming logits: step `k` scored at the last position of the window that ends at
-    /// `k`, front-padded for `k < l − 1` as [`ekf_residue::WindowedOnline`] pads, so what
-    /// [`Detector::online`] gives, to rounding: here the windows run in batches.
-    fn score_streaming_inner(&self, series: &ResidueSeries) -> Result<Vec<f64>> {
-        let (l, n) = (self.window.len, series.len());
-        let mut windows = Windows::empty(l, self.norm.dim());
-        for k in 0..n.min(l - 1) {
-            windows.push_series(&series.slice(0..k + 1)?, None, &self.norm, l)?;
-        }
-        if n >= l {
-            windows.push_series(series, None, &self.norm, 1)?;
-        }
+    /// Each window's logit at its last position, the windows run in batches.
+    fn last_logits(&self, windows: &Windows) -> Result<Vec<f64>> {
+        let l = self.window.len;
         let mut out = Vec::with_capacity(windows.len());
         let idx: Vec<usize> = (0..windows.len()).collect();
         for chunk in idx.chunks(SCORE_BATCH) {
@@ -364,6 +351,22 @@ impl<N: PerStepNet> NeuralDetector<N> {
             out.extend(z.chunks_exact(l).map(|w| f64::from(w[l - 1])));
         }
         Ok(out)
+    }
+
+    /// The streaming logits: step `k` scored at the last position of the window that ends at
+    /// `k`, front-padded for `k < l − 1` as [`ekf_residue::WindowedOnline`] pads, so what
+    /// [`Detector::online`] gives, to rounding: here the windows run in batches
+    /// ([`Self::last_logits`]).
+    fn score_streaming_inner(&self, series: &ResidueSeries) -> Result<Vec<f64>> {
+        let (l, n) = (self.window.len, series.len());
+        let mut windows = Windows::empty(l, self.norm.dim());
+        for k in 0..n.min(l - 1) {
+            windows.push_series(&series.slice(0..k + 1)?, None, &self.norm, l)?;
+        }
+        if n >= l {
+            windows.push_series(series, None, &self.norm, 1)?;
+        }
+        self.last_logits(&windows)
     }
 }
 

@@ -37,8 +37,6 @@ pub struct AbsorbedSums {
     n: usize,
     /// The kept innovations, `n` values each, newest last.
     history: VecDeque<f64>,
-    /// Number of innovations in `history`.
-    kept: usize,
     /// `Σ` over each horizon's newest innovations, per channel.
     sums: Vec<Vec<f64>>,
 }
@@ -52,7 +50,6 @@ impl AbsorbedSums {
         Self {
             sums: vec![vec![0.0; n]; horizons.len()],
             history: VecDeque::with_capacity((longest + 1) * n),
-            kept: 0,
             horizons,
             longest,
             n,
@@ -62,10 +59,14 @@ impl AbsorbedSums {
     /// Forgets every innovation.
     pub fn clear(&mut self) {
         self.history.clear();
-        self.kept = 0;
         for s in &mut self.sums {
             s.fill(0.0);
         }
+    }
+
+    /// Number of innovations kept (0 for innovations of no channel, whose sums stay 0).
+    fn kept(&self) -> usize {
+        self.history.len().checked_div(self.n).unwrap_or(0)
     }
 
     /// Adds the newest innovation `u` (its first `n` values, missing ones read 0; a non-finite
@@ -76,21 +77,21 @@ impl AbsorbedSums {
         let value = |i: usize| u.get(i).copied().unwrap_or(0.0);
         if (0..n).all(|i| value(i).is_finite()) {
             self.history.extend((0..n).map(value));
-            self.kept += 1;
+            let kept = self.kept();
             for (&h, sum) in self.horizons.iter().zip(&mut self.sums) {
                 // The innovation that leaves this horizon, if any.
-                let leaving = self.kept.checked_sub(h + 1);
+                let leaving = kept.checked_sub(h + 1);
                 for (i, s) in sum.iter_mut().enumerate() {
-                    *s += self.history[(self.kept - 1) * n + i] - leaving.map_or(0.0, |j| self.history[j * n + i]);
+                    *s += self.history[(kept - 1) * n + i] - leaving.map_or(0.0, |j| self.history[j * n + i]);
                 }
             }
-            if self.kept > self.longest {
+            if kept > self.longest {
                 self.history.drain(..n);
-                self.kept -= 1;
             }
         }
+        let kept = self.kept();
         for ((&h, sum), o) in self.horizons.iter().zip(&self.sums).zip(out.iter_mut()) {
-            let count = h.min(self.kept);
+            let count = h.min(kept);
             #[allow(clippy::cast_precision_loss)]
             let norm = sum.iter().map(|s| s * s).sum::<f64>().sqrt();
             *o = if count == 0 { 0.0 } else { norm / (count as f64).sqrt() };
