@@ -190,6 +190,31 @@ impl<const N: usize> Ekf<N> {
         fun(&mut self.x);
     }
 
+    /// Forget what is known about the `B` states from `idx` on: their variances become `var`
+    /// and their correlations with every other state 0, as at initialisation (a state reset,
+    /// e.g. PX4 EKF2's velocity reset after GNSS fusion timed out). Zeroing a block's rows and
+    /// columns keeps `P` positive semi-definite (the rest is a principal submatrix of `P`).
+    ///
+    /// # Errors
+    /// [`FilterError::Config`] for a negative or non-finite `var` or a block past the state.
+    pub fn reset_block<const B: usize>(&mut self, idx: usize, var: f64) -> Result<(), FilterError> {
+        if !(var.is_finite() && var >= 0.0) {
+            return Err(FilterError::Config { field: "var", msg: format!("must be finite and ≥ 0, got {var}") });
+        }
+        if idx + B > N {
+            return Err(FilterError::Config {
+                field: "idx",
+                msg: format!("block {idx}..{} past the {N} states", idx + B),
+            });
+        }
+        self.p.rows_mut(idx, B).fill(0.0);
+        self.p.columns_mut(idx, B).fill(0.0);
+        for i in idx..idx + B {
+            self.p[(i, i)] = var;
+        }
+        Ok(())
+    }
+
     /// Add `ΔP` to the covariance (e.g. inflation when a sensor is re-admitted).
     ///
     /// # Errors

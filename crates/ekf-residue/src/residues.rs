@@ -503,27 +503,43 @@ impl Estimator {
         }
     }
 
-    /// Move the position estimate onto `p` (metres, ENU) without touching `P`: the position
-    /// reset PX4 EKF2 performs onto GNSS after a long rejection (`resetHorizontalPositionToGnss`).
-    /// Model II's keyframe position moves by the same offset, so the pending VO increment still
-    /// reads relative to the reset position.
+    /// Reset onto a GNSS fix after a long rejection, as PX4 EKF2 does when GNSS fusion has
+    /// timed out (`resetVelocityToGnss` and `resetHorizontalPositionToGnss`): the position
+    /// estimate moves onto `p` (metres, ENU). The velocity and the accelerometer bias, the
+    /// states whose error drove the dead reckoning away from the fixes, are known again only
+    /// as at initialisation (variances `InitConfig::sigma_v0²` and `sigma_ba0²`, no
+    /// correlations; [`crate::ekf::Ekf::reset_block`]), so the next fixes re-estimate them.
+    /// The GPS carries no velocity here, so the estimates keep their values and lose their
+    /// confidence. The position covariance, grown while GPS was rejected, is kept. Model II's keyframe position moves by the same offset, so the pending VO
+    /// increment still reads relative to the reset position.
     ///
     /// # Errors
     /// [`FilterError::NonFiniteState`] for a non-finite `p`.
-    pub fn reset_position(&mut self, p: &Vector3<f64>) -> Result<(), FilterError> {
+    pub fn reset_onto_fix(&mut self, p: &Vector3<f64>) -> Result<(), FilterError> {
         if !p.iter().all(|v| v.is_finite()) {
             return Err(FilterError::NonFiniteState { t: self.t(), what: "reset position" });
         }
+        let var_v = self.cfg.init.sigma_v0 * self.cfg.init.sigma_v0;
+        let var_ba = self.cfg.init.sigma_ba0 * self.cfg.init.sigma_ba0;
         match &mut self.filter {
-            Filter::One(f) => f.ekf_mut().map_state(|x| x.fixed_rows_mut::<3>(IDX_P).copy_from(p)),
-            Filter::Two(f) => f.ekf_mut().map_state(|x| {
-                let delta = p - x.fixed_rows::<3>(IDX_P);
-                x.fixed_rows_mut::<3>(IDX_P).copy_from(p);
-                let pf = x.fixed_rows::<3>(uav_dynamics::model2::IDX_PF) + delta;
-                x.fixed_rows_mut::<3>(uav_dynamics::model2::IDX_PF).copy_from(&pf);
-            }),
+            Filter::One(f) => {
+                let ekf = f.ekf_mut();
+                ekf.map_state(|x| x.fixed_rows_mut::<3>(IDX_P).copy_from(p));
+                ekf.reset_block::<3>(IDX_V, var_v)?;
+                ekf.reset_block::<3>(IDX_BA, var_ba)
+            }
+            Filter::Two(f) => {
+                let ekf = f.ekf_mut();
+                ekf.map_state(|x| {
+                    let delta = p - x.fixed_rows::<3>(IDX_P);
+                    x.fixed_rows_mut::<3>(IDX_P).copy_from(p);
+                    let pf = x.fixed_rows::<3>(uav_dynamics::model2::IDX_PF) + delta;
+                    x.fixed_rows_mut::<3>(uav_dynamics::model2::IDX_PF).copy_from(&pf);
+                });
+                ekf.reset_block::<3>(IDX_V, var_v)?;
+                ekf.reset_block::<3>(IDX_BA, var_ba)
+            }
         }
-        Ok(())
     }
 
     /// The current estimate (first 15 states) with covariance blocks.

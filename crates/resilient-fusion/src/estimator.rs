@@ -24,8 +24,9 @@
 //!    own covariance. A spoof larger than the prediction's uncertainty stays excluded.
 //! 5. Optionally, as PX4 EKF2 does (`reset_timeout_max` = 7 s in `EKF/common.h`), GPS that has
 //!    been excluded for [`ResilientConfig::reset_after_s`] is re-admitted with a position
-//!    reset onto the fix ([`Estimator::reset_position`]), so the estimate jumps onto whatever
-//!    the receiver reports. The reset is a decision to trust GPS: as after step 4, the
+//!    reset onto the fix ([`Estimator::reset_onto_fix`]), so the estimate jumps onto whatever
+//!    the receiver reports, and its velocity and accelerometer bias, left uncorrected as long,
+//!    are re-estimated from the fixes that follow. The reset is a decision to trust GPS: as after step 4, the
 //!    detector's alarms go unheeded until it clears once, and no rollback rewinds past it, so
 //!    an alarm stuck on the drift its own exclusion caused costs one bounded exclusion, not
 //!    one every `reset_after_s`.
@@ -358,7 +359,7 @@ impl<'d> ResilientEstimator<'d> {
                 self.excluded_intervals.push((t0, t));
             }
             if let (Some(est), Some(p)) = (self.est.as_mut(), meas.gps) {
-                est.reset_position(&p)?;
+                est.reset_onto_fix(&p)?;
             }
             self.alarms_overridden = true;
             self.buffer.clear();
