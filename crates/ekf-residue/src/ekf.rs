@@ -413,6 +413,18 @@ mod tests {
     }
 
     #[test]
+    fn a_block_reset_rejects_a_block_past_the_state_and_a_bad_variance() {
+        let mut ekf =
+            Ekf::<2>::new(Vector2::zeros(), Matrix2::identity(), CovarianceUpdate::Joseph, DivergenceGuard::default())
+                .unwrap();
+        assert!(matches!(ekf.reset_block::<2>(1, 1.0), Err(FilterError::Config { field: "idx", .. })));
+        for bad in [-1.0, f64::NAN, f64::INFINITY] {
+            assert!(matches!(ekf.reset_block::<1>(0, bad), Err(FilterError::Config { field: "var", .. })));
+        }
+        assert_eq!(ekf.p(), &Matrix2::identity(), "a rejected reset leaves P alone");
+    }
+
+    #[test]
     fn singular_innovation_covariance_is_an_error() {
         let mut ekf =
             Ekf::<1>::new(Vector1::new(0.0), Matrix1::new(1.0), CovarianceUpdate::Joseph, DivergenceGuard::default())

@@ -1,14 +1,18 @@
 //! `P` stays symmetric positive semi-definite after every update (Joseph form, eq:ekf_update),
 //! for both models, random seeds, noise shapes and GPS fusion patterns; and the sparse
-//! Model I prediction equals the dense `F P Fᵀ + Q` for random states and covariances.
+//! Model I prediction equals the dense `F P Fᵀ + Q` for random states and covariances; a state
+//! reset (`Ekf::reset_block`, `Estimator::reset_onto_fix`) keeps `P` symmetric positive
+//! semi-definite and forgets exactly the reset states.
 // Test helpers outside #[test] functions unwrap too (clippy allows it only inside tests).
 #![allow(clippy::unwrap_used)]
 
 mod common;
 
 use ekf_residue::model1_filter::{ImuNoise, Model1Filter};
-use ekf_residue::{CovarianceUpdate, DivergenceGuard, Estimator, FilterConfig, GpsFusion, Measurements, ModelKind};
-use nalgebra::{SMatrix, Vector3};
+use ekf_residue::{
+    CovarianceUpdate, DivergenceGuard, Ekf, Estimator, FilterConfig, GpsFusion, Measurements, ModelKind,
+};
+use nalgebra::{SMatrix, SVector, Vector3};
 use proptest::prelude::*;
 use uav_dynamics::model1::{self, ImuInput};
 use uav_dynamics::noise::NoiseShape;
@@ -74,5 +78,52 @@ proptest! {
         b.predict_dense(&u, 0.005).unwrap();
         // Same products summed in another order: rounding only (entries of P are O(10)).
         prop_assert!((a.ekf().p() - b.ekf().p()).abs().max() < 1e-12);
+    }
+
+    #[test]
+    fn a_block_reset_forgets_that_block_and_keeps_p_psd(
+        seed in 0u64..1000, idx in 0usize..=12, var in 0.0..200.0f64
+    ) {
+        let l = SMatrix::<f64, 15, 15>::from_fn(|i, j| (((i * 31 + j * 17) as u64 + seed) % 23) as f64 / 23.0 - 0.5);
+        let p0 = l * l.transpose() + SMatrix::<f64, 15, 15>::identity() * 0.1;
+        let mut ekf = Ekf::<15>::new(SVector::zeros(), p0, CovarianceUpdate::Joseph, DivergenceGuard::default()).unwrap();
+        ekf.reset_block::<3>(idx, var).unwrap();
+        let p = ekf.p();
+        let inside = |i: usize| (idx..idx + 3).contains(&i);
+        for i in 0..15 {
+            for j in 0..15 {
+                let want = match (inside(i), inside(j)) {
+                    (false, false) => p0[(i, j)],
+                    _ if i == j => var,
+                    _ => 0.0,
+                };
+                prop_assert!(p[(i, j)] == want, "P[{i},{j}] = {} (want {want})", p[(i, j)]);
+            }
+        }
+        let min_eig = p.symmetric_eigenvalues().min();
+        prop_assert!(min_eig > -1e-12 * p.trace(), "min eigenvalue {min_eig}");
+    }
+
+    #[test]
+    fn a_reset_onto_a_fix_moves_the_position_and_forgets_the_velocity(
+        seed in 0u64..10_000, model2 in any::<bool>(), dx in -50.0..50.0f64, dy in -50.0..50.0f64
+    ) {
+        let (sim, flight) = common::eight_flight(NoiseShape::Gaussian, 4.0, seed);
+        let model = if model2 { ModelKind::ModelII } else { ModelKind::ModelI };
+        let cfg = FilterConfig::for_sim(model, &sim);
+        let s = &flight.streams;
+        let mut est = Estimator::new(&cfg, s.gps[0].t, &s.gps[0].p, &s.attitude[0].q, true, Some(&s.imu[0])).unwrap();
+        for imu in s.imu.iter().skip(1).take(400) {
+            est.imu(imu).unwrap();
+        }
+        let fix = est.estimate().p + Vector3::new(dx, dy, 1.0);
+        est.reset_onto_fix(&fix).unwrap();
+        let e = est.estimate();
+        prop_assert!((e.p - fix).norm() < 1e-12);
+        let var_v = cfg.init.sigma_v0 * cfg.init.sigma_v0;
+        prop_assert!((e.v_cov - SMatrix::<f64, 3, 3>::identity() * var_v).abs().max() == 0.0, "{}", e.v_cov);
+        let (min_eig, asym) = est.covariance_health();
+        prop_assert!(asym == 0.0 && min_eig > -1e-12 * est.covariance_trace(), "{min_eig} {asym}");
+        prop_assert!(est.reset_onto_fix(&Vector3::new(f64::NAN, 0.0, 0.0)).is_err());
     }
 }
