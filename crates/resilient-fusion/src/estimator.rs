@@ -88,8 +88,9 @@ pub struct ResilientConfig {
     /// every latency, 0 included, with [`Rollback::ReplayWithoutGps`].
     #[serde(default)]
     pub rollback_lookback_s: f64,
-    /// Exclusion time after which GPS is re-admitted with a position reset onto the fix
-    /// (module doc, step 4), seconds. Default `None`: exclusion lasts while alarms do. PX4
+    /// Exclusion time after which GPS is re-admitted with a reset onto the fix (module doc,
+    /// step 5: the position moves onto it, the velocity and accelerometer bias are forgotten),
+    /// seconds. Default `None`: exclusion lasts while alarms do. PX4
     /// EKF2 behaves as `Some(7.0)`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reset_after_s: Option<f64>,
