@@ -32,7 +32,7 @@ use uav_dynamics::model1::{self, IDX_BA, IDX_BG, IDX_P, IDX_Q, IDX_V, ImuInput};
 use uav_dynamics::sensors::{ImuSample, SensorStreams, VoSample};
 
 use crate::align::{AlignedEvent, DEFAULT_TOLERANCE_S, align};
-use crate::ekf::{CovarianceUpdate, DivergenceGuard, Innovation};
+use crate::ekf::{CovarianceUpdate, DivergenceGuard, Ekf, Innovation};
 use crate::error::FilterError;
 use crate::model1_filter::{ImuNoise, Model1Filter};
 use crate::model2_filter::Model2Filter;
@@ -510,8 +510,9 @@ impl Estimator {
     /// as at initialisation (variances `InitConfig::sigma_v0²` and `sigma_ba0²`, no
     /// correlations; [`crate::ekf::Ekf::reset_block`]), so the next fixes re-estimate them.
     /// The GPS carries no velocity here, so the estimates keep their values and lose their
-    /// confidence. The position covariance, grown while GPS was rejected, is kept. Model II's keyframe position moves by the same offset, so the pending VO
-    /// increment still reads relative to the reset position.
+    /// confidence. The position covariance, grown while GPS was rejected, is kept. Model II's
+    /// keyframe position moves by the same offset, so the pending VO increment still reads
+    /// relative to the reset position.
     ///
     /// # Errors
     /// [`FilterError::NonFiniteState`] for a non-finite `p`.
@@ -521,12 +522,15 @@ impl Estimator {
         }
         let var_v = self.cfg.init.sigma_v0 * self.cfg.init.sigma_v0;
         let var_ba = self.cfg.init.sigma_ba0 * self.cfg.init.sigma_ba0;
+        fn forget<const N: usize>(ekf: &mut Ekf<N>, var_v: f64, var_ba: f64) -> Result<(), FilterError> {
+            ekf.reset_block::<3>(IDX_V, var_v)?;
+            ekf.reset_block::<3>(IDX_BA, var_ba)
+        }
         match &mut self.filter {
             Filter::One(f) => {
                 let ekf = f.ekf_mut();
                 ekf.map_state(|x| x.fixed_rows_mut::<3>(IDX_P).copy_from(p));
-                ekf.reset_block::<3>(IDX_V, var_v)?;
-                ekf.reset_block::<3>(IDX_BA, var_ba)
+                forget(ekf, var_v, var_ba)
             }
             Filter::Two(f) => {
                 let ekf = f.ekf_mut();
@@ -536,8 +540,7 @@ impl Estimator {
                     let pf = x.fixed_rows::<3>(uav_dynamics::model2::IDX_PF) + delta;
                     x.fixed_rows_mut::<3>(uav_dynamics::model2::IDX_PF).copy_from(&pf);
                 });
-                ekf.reset_block::<3>(IDX_V, var_v)?;
-                ekf.reset_block::<3>(IDX_BA, var_ba)
+                forget(ekf, var_v, var_ba)
             }
         }
     }
