@@ -26,10 +26,10 @@
 //!    been excluded for [`ResilientConfig::reset_after_s`] is re-admitted with a position
 //!    reset onto the fix ([`Estimator::reset_onto_fix`]), so the estimate jumps onto whatever
 //!    the receiver reports, and its velocity and accelerometer bias, left uncorrected as long,
-//!    are re-estimated from the fixes that follow. The reset is a decision to trust GPS: as after step 4, the
-//!    detector's alarms go unheeded until it clears once, and no rollback rewinds past it, so
-//!    an alarm stuck on the drift its own exclusion caused costs one bounded exclusion, not
-//!    one every `reset_after_s`.
+//!    are re-estimated from the fixes that follow. The reset is a decision to trust GPS: as
+//!    after step 4, the detector's alarms go unheeded until it clears once, and no rollback
+//!    rewinds past it, so an alarm stuck on the drift its own exclusion caused costs one
+//!    bounded exclusion, not one every `reset_after_s`.
 //!
 //! Positions in local ENU metres, times in seconds.
 
