@@ -17,7 +17,9 @@
 //! - an attack interval is a maximal run of attacked steps; its delay is the time from its first
 //!   step to its first alarmed step; intervals without an alarm are counted as missed;
 //! - a false-alarm event is a maximal run of alarmed clean steps; clean time is the summed
-//!   duration of clean steps, each step lasting until the next one;
+//!   duration of clean steps, each step lasting until the next one; an event is raised on a
+//!   clean step unless it continues the alarm of the attacked step just before it (an alarm
+//!   that outlasts its attack);
 //! - quantiles interpolate linearly between order statistics (numpy's default);
 //! - the spread over seeds is the sample standard deviation (divisor `n − 1`).
 
@@ -309,6 +311,9 @@ pub fn quantile(values: &[f64], q: f64) -> Option<f64> {
 pub struct FalseAlarmRate {
     /// Number of false-alarm events (maximal runs of alarmed clean steps).
     pub n_events: usize,
+    /// Of those, the events raised on a clean step: every event but those that continue an
+    /// alarm raised on the attacked step just before (an alarm outlasting its attack).
+    pub n_raised_clean: usize,
     /// Summed duration of clean steps in seconds.
     pub clean_time_s: f64,
 }
@@ -316,7 +321,17 @@ pub struct FalseAlarmRate {
 impl FalseAlarmRate {
     /// Events per minute of clean flight; 0 when there is no clean time.
     pub fn per_minute(&self) -> f64 {
-        if self.clean_time_s > 0.0 { self.n_events as f64 * 60.0 / self.clean_time_s } else { 0.0 }
+        self.rate(self.n_events)
+    }
+
+    /// Events raised on a clean step ([`FalseAlarmRate::n_raised_clean`]) per minute of clean
+    /// flight; 0 when there is no clean time.
+    pub fn raised_clean_per_minute(&self) -> f64 {
+        self.rate(self.n_raised_clean)
+    }
+
+    fn rate(&self, n: usize) -> f64 {
+        if self.clean_time_s > 0.0 { n as f64 * 60.0 / self.clean_time_s } else { 0.0 }
     }
 }
 
@@ -402,7 +417,7 @@ pub fn false_alarms(t: &[f64], alarms: &[bool], labels: &[bool]) -> Result<False
     let scores = vec![0.0; labels.len()];
     let flight = FlightOutcome { t, scores: &scores, alarms, labels };
     flight.check(0)?;
-    let mut rate = FalseAlarmRate { n_events: 0, clean_time_s: 0.0 };
+    let mut rate = FalseAlarmRate { n_events: 0, n_raised_clean: 0, clean_time_s: 0.0 };
     add_false_alarms(&flight, &mut rate);
     Ok(rate)
 }
@@ -413,6 +428,10 @@ fn add_false_alarms(flight: &FlightOutcome<'_>, rate: &mut FalseAlarmRate) {
         let false_alarm = flight.alarms[k] && !flight.labels[k];
         if false_alarm && !in_event {
             rate.n_events += 1;
+            let outlasts_attack = k > 0 && flight.labels[k - 1] && flight.alarms[k - 1];
+            if !outlasts_attack {
+                rate.n_raised_clean += 1;
+            }
         }
         in_event = false_alarm;
         if !flight.labels[k] {
@@ -465,7 +484,7 @@ pub fn evaluate(flights: &[FlightOutcome<'_>]) -> Result<Evaluation> {
     let roc = RocCurve::new(flights.iter().map(|f| (f.scores, f.labels)))?;
     let mut confusion = Confusion::default();
     let mut delays = DelayStats { delays_s: Vec::new(), n_intervals: 0, n_missed: 0 };
-    let mut false_alarms = FalseAlarmRate { n_events: 0, clean_time_s: 0.0 };
+    let mut false_alarms = FalseAlarmRate { n_events: 0, n_raised_clean: 0, clean_time_s: 0.0 };
     for f in flights {
         confusion.add(Confusion::count(f.alarms, f.labels));
         add_delays(f, &mut delays);

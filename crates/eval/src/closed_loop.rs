@@ -231,6 +231,10 @@ pub struct ClosedLoopRow {
     pub delay_p90_s: Option<f64>,
     /// Alarm events (maximal runs of alarmed clean fixes) per minute of clean flight.
     pub alarm_events_per_clean_min: f64,
+    /// Of those, the events raised on a clean fix, per minute of clean flight: every event but
+    /// an alarm that outlasts the attack it was raised on
+    /// ([`detection_metrics::FalseAlarmRate::n_raised_clean`]).
+    pub alarms_raised_clean_per_min: f64,
     /// Largest `‖p̂ − p‖` on attacked fixes, metres.
     pub max_error_attack_m: f64,
     /// RMS of `‖p̂ − p‖` on attacked fixes, metres.
@@ -719,6 +723,8 @@ pub struct LoopMetrics {
     pub delay_p90_s: Option<f64>,
     /// Alarm events per minute of clean flight.
     pub alarm_events_per_clean_min: f64,
+    /// Of those, the events raised on a clean fix (not an alarm outlasting its attack).
+    pub alarms_raised_clean_per_min: f64,
     /// Largest `‖p̂ − p‖` on attacked fixes, metres.
     pub max_error_attack_m: f64,
     /// RMS of `‖p̂ − p‖` on attacked fixes, metres.
@@ -766,6 +772,7 @@ fn row(
         delay_median_s: m.delay_median_s,
         delay_p90_s: m.delay_p90_s,
         alarm_events_per_clean_min: m.alarm_events_per_clean_min,
+        alarms_raised_clean_per_min: m.alarms_raised_clean_per_min,
         max_error_attack_m: m.max_error_attack_m,
         rmse_attack_m: m.rmse_attack_m,
         max_error_after_m: m.max_error_after_m,
@@ -783,7 +790,7 @@ fn row(
 pub fn loop_metrics(flights: &[&[LoopStep]], drift: bool) -> LoopMetrics {
     let mut conf = Confusion::default();
     let mut delays = Vec::new();
-    let (mut n_intervals, mut fa_events, mut clean_s) = (0u64, 0usize, 0.0);
+    let (mut n_intervals, mut fa_events, mut fa_raised, mut clean_s) = (0u64, 0usize, 0usize, 0.0);
     let (mut max_att, mut sum_sq_att, mut n_att, mut max_after, mut lost) = (0.0_f64, 0.0, 0usize, 0.0_f64, 0.0);
     let (mut drifts, mut caught) = (0usize, 0usize);
     for &steps in flights {
@@ -797,6 +804,7 @@ pub fn loop_metrics(flights: &[&[LoopStep]], drift: bool) -> LoopMetrics {
         }
         if let Ok(fa) = false_alarms(&t, &alarms, &labels) {
             fa_events += fa.n_events;
+            fa_raised += fa.n_raised_clean;
             clean_s += fa.clean_time_s;
         }
         let dt = match t.as_slice() {
@@ -838,7 +846,7 @@ pub fn loop_metrics(flights: &[&[LoopStep]], drift: bool) -> LoopMetrics {
     #[allow(clippy::cast_precision_loss)]
     let rmse = if n_att > 0 { (sum_sq_att / n_att as f64).sqrt() } else { 0.0 };
     #[allow(clippy::cast_precision_loss)]
-    let fa_rate = if clean_s > 0.0 { fa_events as f64 * 60.0 / clean_s } else { 0.0 };
+    let per_clean_min = |n: usize| if clean_s > 0.0 { n as f64 * 60.0 / clean_s } else { 0.0 };
     #[allow(clippy::cast_precision_loss)]
     let alarmed_before_3m = (drift && drifts > 0).then(|| caught as f64 / drifts as f64);
     if flights.iter().any(|f| f.iter().any(|s| s.error_m.is_nan())) {
@@ -851,7 +859,8 @@ pub fn loop_metrics(flights: &[&[LoopStep]], drift: bool) -> LoopMetrics {
         f1: conf.f1(),
         delay_median_s: quantile(&delays, 0.5),
         delay_p90_s: quantile(&delays, 0.9),
-        alarm_events_per_clean_min: fa_rate,
+        alarm_events_per_clean_min: per_clean_min(fa_events),
+        alarms_raised_clean_per_min: per_clean_min(fa_raised),
         max_error_attack_m: max_att,
         rmse_attack_m: rmse,
         max_error_after_m: max_after,
@@ -1075,8 +1084,11 @@ pub fn table3_markdown(rows: &[ClosedLoopRow], methods: &[LoopMethod], cfg: &Mat
                 let mark = if f.trained() { "" } else { " †" };
                 let _ = write!(s, " {}{mark} F1 | max err (m) |", f.name());
             }
-            let _ = writeln!(s, " ramp caught < 3 m | alarm events / clean min (all families) |");
-            let _ = writeln!(s, "|---|{}---|---|", "---|---|".repeat(Family::ALL.len()));
+            let _ = writeln!(
+                s,
+                " ramp caught < 3 m | alarm events / clean min (all families) | of which raised on a clean fix |"
+            );
+            let _ = writeln!(s, "|---|{}---|---|---|", "---|---|".repeat(Family::ALL.len()));
             for &m in methods {
                 let lat = latency_of(m, latency);
                 let _ = write!(s, "| {} |", m.name());
@@ -1087,15 +1099,17 @@ pub fn table3_markdown(rows: &[ClosedLoopRow], methods: &[LoopMethod], cfg: &Mat
                     let _ = write!(s, " {} | {} |", fmt_ms(f1, 2), fmt_ms(err, 1));
                 }
                 let caught = group_stat(rows, (model, noise, "ramp", m.name(), lat), |r| r.alarmed_before_3m);
-                let fa = {
+                let over_families = |stat: fn(&ClosedLoopRow) -> f64| {
                     let vals: Vec<f64> = rows
                         .iter()
                         .filter(|r| r.model == model && r.noise == noise && r.method == m.name() && r.latency_s == lat)
-                        .map(|r| r.alarm_events_per_clean_min)
+                        .map(stat)
                         .collect();
                     MeanStd::new("alarms", &vals).ok()
                 };
-                let _ = writeln!(s, " {} | {} |", fmt_ms(caught, 2), fmt_ms(fa, 2));
+                let fa = over_families(|r| r.alarm_events_per_clean_min);
+                let raised = over_families(|r| r.alarms_raised_clean_per_min);
+                let _ = writeln!(s, " {} | {} | {} |", fmt_ms(caught, 2), fmt_ms(fa, 2), fmt_ms(raised, 2));
             }
             let _ = writeln!(s);
         }
@@ -1332,9 +1346,16 @@ mod tests {
         assert!((r.gps_lost_clean_s - 0.5).abs() < 1e-9);
         assert!((r.clean_min - 59.0 / 60.0).abs() < 1e-6, "{}", r.clean_min);
         assert!((r.alarm_events_per_clean_min - 60.0 / 59.0).abs() < 1e-6);
+        assert!((r.alarms_raised_clean_per_min - 60.0 / 59.0).abs() < 1e-6);
         assert_eq!((r.max_error_attack_m, r.rmse_attack_m, r.max_error_after_m), (2.0, 2.0, 0.1));
         // The offset passes 3 m at the third attacked fix, before the first alarm: not caught.
         assert_eq!(r.alarmed_before_3m, Some(0.0));
+        // An alarm that outlasts its attack by two fixes is an alarm event on clean fixes, but
+        // not one raised on a clean fix.
+        let late = steps(600, |k| (100..110).contains(&k), |k| (103..112).contains(&k));
+        let r = row(UNIT, Family::Sparse, "X", 0.0, None, &[late.as_slice()]);
+        assert!((r.alarm_events_per_clean_min - 60.0 / 59.0).abs() < 1e-6);
+        assert_eq!(r.alarms_raised_clean_per_min, 0.0);
         let early = steps(600, |k| (100..110).contains(&k), |k| (101..110).contains(&k));
         let r = row(UNIT, Family::Ramp, "X", 0.0, None, &[early.as_slice(), f.as_slice()]);
         assert_eq!(r.alarmed_before_3m, Some(0.5), "one of the two drifts caught before 3 m");

@@ -101,6 +101,9 @@ fn false_alarm_events_over_clean_time() {
     assert_eq!(fa.n_events, 3);
     assert!(close(fa.clean_time_s, 6.0));
     assert!(close(fa.per_minute(), 30.0));
+    // {5} continues the alarm of attacked step 4: raised on a clean step are {1, 2} and {7}.
+    assert_eq!(fa.n_raised_clean, 2);
+    assert!(close(fa.raised_clean_per_minute(), 20.0));
 }
 
 #[test]

@@ -353,7 +353,7 @@ fn fly_folder(args: &Args, dir: &Path, det: &FusionDetector) -> Result<(), CliEr
          | metric | value |\n|---|---|\n\
          | precision / recall / F1 | {:.3} / {:.3} / {:.3} |\n\
          | detection delay median / p90 (s) | {} / {} |\n\
-         | alarm events per clean minute | {:.2} |\n\
+         | alarm events per clean minute / of which raised on a clean fix | {:.2} / {:.2} |\n\
          | max / RMS position error on attacked fixes (m) | {:.2} / {:.2} |\n\
          | max position error within 30 s after an attack (m) | {:.2} |\n\
          | GPS excluded on clean fixes (s) | {:.1} |\n\
@@ -378,6 +378,7 @@ fn fly_folder(args: &Args, dir: &Path, det: &FusionDetector) -> Result<(), CliEr
         opt(m.delay_median_s),
         opt(m.delay_p90_s),
         m.alarm_events_per_clean_min,
+        m.alarms_raised_clean_per_min,
         m.max_error_attack_m,
         m.rmse_attack_m,
         m.max_error_after_m,
