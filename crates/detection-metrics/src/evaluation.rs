@@ -307,7 +307,7 @@ pub fn quantile(values: &[f64], q: f64) -> Option<f64> {
 }
 
 /// False alarms over clean flight time.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct FalseAlarmRate {
     /// Number of false-alarm events (maximal runs of alarmed clean steps).
     pub n_events: usize,
@@ -417,7 +417,7 @@ pub fn false_alarms(t: &[f64], alarms: &[bool], labels: &[bool]) -> Result<False
     let scores = vec![0.0; labels.len()];
     let flight = FlightOutcome { t, scores: &scores, alarms, labels };
     flight.check(0)?;
-    let mut rate = FalseAlarmRate { n_events: 0, n_raised_clean: 0, clean_time_s: 0.0 };
+    let mut rate = FalseAlarmRate::default();
     add_false_alarms(&flight, &mut rate);
     Ok(rate)
 }
@@ -484,7 +484,7 @@ pub fn evaluate(flights: &[FlightOutcome<'_>]) -> Result<Evaluation> {
     let roc = RocCurve::new(flights.iter().map(|f| (f.scores, f.labels)))?;
     let mut confusion = Confusion::default();
     let mut delays = DelayStats { delays_s: Vec::new(), n_intervals: 0, n_missed: 0 };
-    let mut false_alarms = FalseAlarmRate { n_events: 0, n_raised_clean: 0, clean_time_s: 0.0 };
+    let mut false_alarms = FalseAlarmRate::default();
     for f in flights {
         confusion.add(Confusion::count(f.alarms, f.labels));
         add_delays(f, &mut delays);

@@ -40,7 +40,7 @@ use std::time::Instant;
 
 use attack_inject::AttackedSample;
 use attack_inject::{AttackConfig, AttackInterval, AttackKind};
-use detection_metrics::{Confusion, best_f1_threshold};
+use detection_metrics::{Confusion, FalseAlarmRate, best_f1_threshold};
 use ekf_residue::residues::{FilterConfig, GPS_CHANNELS};
 use ekf_residue::{Confirmed, Detector, LabelledResidues, OnlineDetector, TrailingMean};
 use rayon::prelude::*;
@@ -790,7 +790,7 @@ fn row(
 pub fn loop_metrics(flights: &[&[LoopStep]], drift: bool) -> LoopMetrics {
     let mut conf = Confusion::default();
     let mut delays = Vec::new();
-    let (mut n_intervals, mut fa_events, mut fa_raised, mut clean_s) = (0u64, 0usize, 0usize, 0.0);
+    let (mut n_intervals, mut fa) = (0u64, FalseAlarmRate::default());
     let (mut max_att, mut sum_sq_att, mut n_att, mut max_after, mut lost) = (0.0_f64, 0.0, 0usize, 0.0_f64, 0.0);
     let (mut drifts, mut caught) = (0usize, 0usize);
     for &steps in flights {
@@ -802,10 +802,10 @@ pub fn loop_metrics(flights: &[&[LoopStep]], drift: bool) -> LoopMetrics {
             delays.extend(d.delays_s);
             n_intervals += d.n_intervals as u64;
         }
-        if let Ok(fa) = false_alarms(&t, &alarms, &labels) {
-            fa_events += fa.n_events;
-            fa_raised += fa.n_raised_clean;
-            clean_s += fa.clean_time_s;
+        if let Ok(f) = false_alarms(&t, &alarms, &labels) {
+            fa.n_events += f.n_events;
+            fa.n_raised_clean += f.n_raised_clean;
+            fa.clean_time_s += f.clean_time_s;
         }
         let dt = match t.as_slice() {
             [a, b, ..] => b - a,
@@ -846,8 +846,6 @@ pub fn loop_metrics(flights: &[&[LoopStep]], drift: bool) -> LoopMetrics {
     #[allow(clippy::cast_precision_loss)]
     let rmse = if n_att > 0 { (sum_sq_att / n_att as f64).sqrt() } else { 0.0 };
     #[allow(clippy::cast_precision_loss)]
-    let per_clean_min = |n: usize| if clean_s > 0.0 { n as f64 * 60.0 / clean_s } else { 0.0 };
-    #[allow(clippy::cast_precision_loss)]
     let alarmed_before_3m = (drift && drifts > 0).then(|| caught as f64 / drifts as f64);
     if flights.iter().any(|f| f.iter().any(|s| s.error_m.is_nan())) {
         (max_att, max_after) = (f64::NAN, f64::NAN);
@@ -859,15 +857,15 @@ pub fn loop_metrics(flights: &[&[LoopStep]], drift: bool) -> LoopMetrics {
         f1: conf.f1(),
         delay_median_s: quantile(&delays, 0.5),
         delay_p90_s: quantile(&delays, 0.9),
-        alarm_events_per_clean_min: per_clean_min(fa_events),
-        alarms_raised_clean_per_min: per_clean_min(fa_raised),
+        alarm_events_per_clean_min: fa.per_minute(),
+        alarms_raised_clean_per_min: fa.raised_clean_per_minute(),
         max_error_attack_m: max_att,
         rmse_attack_m: rmse,
         max_error_after_m: max_after,
         gps_lost_clean_s: lost,
         alarmed_before_3m,
         n_intervals,
-        clean_min: clean_s / 60.0,
+        clean_min: fa.clean_time_s / 60.0,
     }
 }
 
