@@ -36,6 +36,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use attack_inject::AttackedSample;
@@ -520,7 +521,7 @@ pub struct LoopCandidates<'a> {
 pub struct Flown {
     /// The setting.
     pub setting: LoopSetting,
-    /// Index of its (confirm, smooth) pair in the order the pairs are flown.
+    /// Index of its (confirm, smooth) pair in `confirm` × `smooth`, smoothing varying fastest.
     pub pair: usize,
     /// Per-fix F1 of its alarms on the validation flights.
     pub f1: f64,
@@ -551,7 +552,11 @@ fn choose(flown: &[Flown], f1_tolerance: Option<f64>) -> Option<Flown> {
 ///    also undoes the spoofed fixes fused before it in nine attacks out of ten.
 /// 2. Candidates: that threshold, the F1-maximising threshold of the scores it gave there and
 ///    [`LOOP_THRESHOLD_QUANTILES`] of its scores on clean fixes.
-/// 3. Fly them again at each candidate with that look-back.
+/// 3. Fly them again at each candidate with that look-back. A candidate stops flying as soon
+///    as its F1 could no longer be chosen even if every attacked fix of the flights left
+///    alarmed and no clean one did. Leaving it out changes no choice; the candidates are
+///    flown best-first by the F1 their thresholds give the scores of step 1, and each one's
+///    flights with the most attacked fixes first, so that the bound tightens early.
 /// 4. Steps 1–3 are taken for each pair of candidates of the score's trailing mean
 ///    ([`LoopSetting::smooth`]; `MatrixConfig::loop_smooth`) and of the confirmation (an
 ///    alarm stands after that many consecutive raw alarms, [`LoopSetting::confirm`];
@@ -567,8 +572,9 @@ fn choose(flown: &[Flown], f1_tolerance: Option<f64>) -> Option<Flown> {
 /// a drift the detector then keeps alarming on (lock-out) loses to one that does not.
 ///
 /// # Errors
-/// A flight's error, no attacked fix among the validation flights, a `confirm` candidate
-/// of 0, an F1 tolerance that is not a finite non-negative number, or no candidate.
+/// A flight's error (of step 1, or of a candidate still in reach), no attacked fix among
+/// the validation flights, a `confirm` candidate of 0, an F1 tolerance that is not a finite
+/// non-negative number, or no candidate.
 pub fn loop_setting(
     det: &dyn Detector,
     valid: &[PlannedFlight],
@@ -578,59 +584,188 @@ pub fn loop_setting(
     if let Some(tol) = candidates.f1_tolerance.filter(|t| !(t.is_finite() && *t >= 0.0)) {
         return Err(format!("loop_f1_tolerance: must be finite and at least 0, got {tol}"));
     }
-    let mut flown = Vec::new();
-    let pairs = candidates.confirm.iter().flat_map(|&c| candidates.smooth.iter().map(move |&w| (c, w)));
-    for (pair, (confirm, smooth)) in pairs.enumerate() {
-        if confirm == 0 {
-            return Err("loop_confirm: a confirmation needs at least 1 raw alarm, got 0".into());
-        }
-        flown.extend(loop_candidates_at(det, valid, filter, confirm, smooth, pair)?);
+    let pairs: Vec<(usize, usize)> =
+        candidates.confirm.iter().flat_map(|&c| candidates.smooth.iter().map(move |&w| (c, w))).collect();
+    if pairs.iter().any(|&(confirm, _)| confirm == 0) {
+        return Err("loop_confirm: a confirmation needs at least 1 raw alarm, got 0".into());
     }
+    let planned: Vec<(Vec<Planned>, Vec<u64>)> = pairs
+        .par_iter()
+        .enumerate()
+        .map(|(pair, &(confirm, smooth))| plan_candidates(det, valid, filter, confirm, smooth, pair))
+        .collect::<std::result::Result<_, String>>()?;
+    // Which fixes are attacked depends on the flight alone, not on the pilot: every pair's
+    // step 1 counts the same.
+    let attacked = planned.first().map(|(_, a)| a.clone()).unwrap_or_default();
+    let mut order: Vec<Planned> = planned.into_iter().flat_map(|(p, _)| p).collect();
+    // The likeliest winners first (ties as `choose` breaks them), so that the others fall out
+    // of reach sooner; `par_bridge` hands them to the threads in this order.
+    order.sort_by(|a, b| {
+        (b.step1_f1.total_cmp(&a.step1_f1))
+            .then(a.pair.cmp(&b.pair))
+            .then(b.setting.threshold.total_cmp(&a.setting.threshold))
+    });
+    let best = BestSoFar::new(candidates.f1_tolerance);
+    let flown: Vec<Option<Flown>> = order
+        .into_iter()
+        .par_bridge()
+        .map(|p| {
+            let m = fly_within_reach(valid, filter, Pilot::Fitted(det, p.setting), &attacked, &best)?;
+            Ok(m.map(|m| {
+                best.record(m.f1);
+                Flown {
+                    setting: p.setting,
+                    pair: p.pair,
+                    f1: m.f1,
+                    alarm_events_per_clean_min: m.alarm_events_per_clean_min,
+                }
+            }))
+        })
+        .collect::<std::result::Result<_, String>>()?;
+    let flown: Vec<Flown> = flown.into_iter().flatten().collect();
     choose(&flown, candidates.f1_tolerance).ok_or_else(|| "loop_confirm, loop_smooth: no candidate".to_owned())
 }
 
-/// Steps 1–3 of [`loop_setting`] with alarms confirmed over `confirm` steps and scores
-/// averaged over `smooth` earlier ones: every threshold candidate as flown, tagged with
-/// `pair`, the index of the pair.
-fn loop_candidates_at(
+/// A threshold candidate of [`loop_setting`], before it is flown.
+struct Planned {
+    setting: LoopSetting,
+    /// Index of its (confirm, smooth) pair.
+    pair: usize,
+    /// The F1 of its threshold on the scores of step 1, which ranks the candidates.
+    step1_f1: f64,
+}
+
+/// Steps 1 and 2 of [`loop_setting`] for one pair: alarms confirmed over `confirm` steps,
+/// scores averaged over `smooth` earlier ones, every threshold candidate tagged with `pair`,
+/// the index of the pair; and the number of attacked fixes of each validation flight, in the
+/// order of `valid`.
+fn plan_candidates(
     det: &dyn Detector,
     valid: &[PlannedFlight],
     filter: &FilterConfig,
     confirm: usize,
     smooth: usize,
     pair: usize,
-) -> std::result::Result<Vec<Flown>, String> {
+) -> std::result::Result<(Vec<Planned>, Vec<u64>), String> {
     let reset_after_s = exclusion_bound_s(valid);
     let fitted = LoopSetting { threshold: det.streaming_threshold(), lookback_s: 0.0, reset_after_s, confirm, smooth };
     let traces = fly_family(valid, filter, Pilot::Fitted(det, fitted), 0.0)?;
     let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
     let lookback_s = loop_metrics(&steps, false).delay_p90_s.unwrap_or(0.0).clamp(0.0, MAX_LOOKBACK_S);
-    let pairs: Vec<(Vec<f64>, Vec<bool>)> = traces
+    let scored: Vec<(Vec<f64>, Vec<bool>)> = traces
         .iter()
         .map(|tr| (tr.steps.iter().map(|s| s.score).collect(), tr.steps.iter().map(|s| s.attacked).collect()))
         .collect();
-    let (one_step, _) = best_f1_threshold(pairs.iter().map(|(s, l)| (s.as_slice(), l.as_slice())))
+    let (one_step, _) = best_f1_threshold(scored.iter().map(|(s, l)| (s.as_slice(), l.as_slice())))
         .map_err(|e| format!("{} loop threshold: {e}", det.name()))?;
     let clean: Vec<f64> =
         traces.iter().flat_map(|tr| tr.steps.iter().filter(|s| !s.attacked).map(|s| s.score)).collect();
-    let mut candidates = vec![fitted.threshold, one_step];
-    candidates.extend(LOOP_THRESHOLD_QUANTILES.iter().filter_map(|&q| quantile(&clean, q)));
-    candidates.retain(|t| t.is_finite());
-    candidates.sort_by(f64::total_cmp);
-    candidates.dedup();
-    if candidates.is_empty() {
+    let mut thresholds = vec![fitted.threshold, one_step];
+    thresholds.extend(LOOP_THRESHOLD_QUANTILES.iter().filter_map(|&q| quantile(&clean, q)));
+    thresholds.retain(|t| t.is_finite());
+    thresholds.sort_by(f64::total_cmp);
+    thresholds.dedup();
+    if thresholds.is_empty() {
         return Err(format!("{} loop threshold: no candidate", det.name()));
     }
-    candidates
-        .par_iter()
-        .map(|&threshold| {
-            let setting = LoopSetting { threshold, lookback_s, reset_after_s, confirm, smooth };
-            let traces = fly_family(valid, filter, Pilot::Fitted(det, setting), 0.0)?;
-            let steps: Vec<&[LoopStep]> = traces.iter().map(|t| t.steps.as_slice()).collect();
-            let m = loop_metrics(&steps, false);
-            Ok(Flown { setting, pair, f1: m.f1, alarm_events_per_clean_min: m.alarm_events_per_clean_min })
+    let attacked: Vec<u64> = scored.iter().map(|(_, l)| l.iter().map(|&a| u64::from(a)).sum()).collect();
+    let step1_f1 = |t: f64| {
+        let mut conf = Confusion::default();
+        for (s, l) in &scored {
+            conf.add(Confusion::count(&s.iter().map(|&x| x > t).collect::<Vec<_>>(), l));
+        }
+        conf.f1()
+    };
+    let planned = thresholds
+        .into_iter()
+        .map(|threshold| Planned {
+            setting: LoopSetting { threshold, lookback_s, reset_after_s, confirm, smooth },
+            pair,
+            step1_f1: step1_f1(threshold),
         })
-        .collect()
+        .collect();
+    Ok((planned, attacked))
+}
+
+/// The best validation F1 flown so far for one detector, shared by the candidates
+/// [`loop_setting`] flies in parallel, and the F1 tolerance of its choice.
+struct BestSoFar {
+    /// `f64` bits of the best F1; F1 is never negative, and the bits of non-negative floats
+    /// order as the floats do.
+    f1_bits: AtomicU64,
+    tolerance: f64,
+}
+
+impl BestSoFar {
+    fn new(f1_tolerance: Option<f64>) -> Self {
+        Self { f1_bits: AtomicU64::new(0.0_f64.to_bits()), tolerance: f1_tolerance.unwrap_or(0.0) }
+    }
+
+    /// Records the F1 of a candidate flown to the end. `Relaxed` suffices: a thread that reads
+    /// an older best only stops a candidate later.
+    fn record(&self, f1: f64) {
+        self.f1_bits.fetch_max(f1.to_bits(), Ordering::Relaxed);
+    }
+
+    /// Whether a candidate whose F1 can reach at most `f1_bound` can no longer be chosen: the
+    /// choice takes the best F1, or one within the tolerance of it ([`choose`]).
+    fn out_of_reach(&self, f1_bound: f64) -> bool {
+        f1_bound < f64::from_bits(self.f1_bits.load(Ordering::Relaxed)) - self.tolerance
+    }
+}
+
+/// The metrics of `flights` flown with `pilot`, or `None` as soon as the F1 of its alarms can
+/// no longer be chosen ([`BestSoFar::out_of_reach`] of [`f1_bound`]). `attacked` holds the
+/// attacked fixes of each flight; the flights with the most fly first, so that the bound
+/// tightens early (the metrics used here are sums over flights, whatever their order).
+///
+/// # Errors
+/// A flight's error, or a flight whose attacked fixes are not `attacked` (the bound would not
+/// hold).
+fn fly_within_reach(
+    flights: &[PlannedFlight],
+    filter: &FilterConfig,
+    pilot: Pilot<'_>,
+    attacked: &[u64],
+    best: &BestSoFar,
+) -> std::result::Result<Option<LoopMetrics>, String> {
+    if attacked.len() != flights.len() {
+        return Err(format!("{}: attacked fixes of {} flights for {}", pilot.name(), attacked.len(), flights.len()));
+    }
+    let mut order: Vec<usize> = (0..flights.len()).collect();
+    order.sort_by_key(|&i| std::cmp::Reverse(attacked[i]));
+    let mut still_to_fly: u64 = attacked.iter().sum();
+    let mut conf = Confusion::default();
+    let mut flown: Vec<Vec<LoopStep>> = Vec::with_capacity(flights.len());
+    for i in order {
+        let steps = fly(&flights[i], filter, pilot, 0.0)?.steps;
+        let alarms: Vec<bool> = steps.iter().map(|s| s.alarm).collect();
+        let labels: Vec<bool> = steps.iter().map(|s| s.attacked).collect();
+        let c = Confusion::count(&alarms, &labels);
+        if c.tp + c.fn_ != attacked[i] {
+            return Err(format!(
+                "{} flight {}: {} attacked fixes, {} when the candidates were planned",
+                pilot.name(),
+                flights[i].index,
+                c.tp + c.fn_,
+                attacked[i]
+            ));
+        }
+        conf.add(c);
+        flown.push(steps);
+        still_to_fly -= attacked[i];
+        if best.out_of_reach(f1_bound(conf, still_to_fly)) {
+            return Ok(None);
+        }
+    }
+    let steps: Vec<&[LoopStep]> = flown.iter().map(Vec::as_slice).collect();
+    Ok(Some(loop_metrics(&steps, false)))
+}
+
+/// The highest per-fix F1 alarms can still reach after the flights counted in `so_far`, with
+/// `still_to_fly` attacked fixes left: every one of them alarms and no clean fix does.
+fn f1_bound(so_far: Confusion, still_to_fly: u64) -> f64 {
+    Confusion { tp: so_far.tp + still_to_fly, ..so_far }.f1()
 }
 
 /// What decides the exclusions of a flight.
@@ -664,35 +799,40 @@ fn fly_family(
     pilot: Pilot<'_>,
     latency_s: f64,
 ) -> std::result::Result<Vec<LoopTrace>, String> {
-    flights
-        .iter()
-        .map(|f| {
-            let mut cfg = ResilientConfig { latency_s, ..ResilientConfig::default() };
-            let online: Option<Box<dyn OnlineDetector + '_>> = match pilot {
-                Pilot::Fitted(d, setting) => {
-                    cfg.detector_channels = d.channels().to_vec();
-                    cfg.readmit_nis = Some(ResilientConfig::CHI2_3_99);
-                    cfg.rollback_lookback_s = setting.lookback_s;
-                    cfg.reset_after_s = setting.reset_after_s;
-                    let scored = TrailingMean::new(d.online_at(setting.threshold), setting.smooth, setting.threshold);
-                    Some(Box::new(Confirmed::new(Box::new(scored), setting.confirm)))
-                }
-                Pilot::Px4Ekf2 => {
-                    cfg.hold_s = 0.0;
-                    cfg.reset_after_s = Some(7.0);
-                    cfg.detector_channels = GPS_CHANNELS.iter().map(|c| (*c).to_owned()).collect();
-                    Some(Box::new(InnovationGate::new(InnovationGate::PX4_GAMMA).map_err(|e| e.to_string())?))
-                }
-                Pilot::None => None,
-                Pilot::Oracle => {
-                    cfg.hold_s = 0.0;
-                    Some(Box::new(Oracle::new(f.plan.clone())))
-                }
-            };
-            fly_recorded(&f.flight, &f.plan, filter, &cfg, online)
-                .map_err(|e| format!("{} flight {}: {e}", pilot.name(), f.index))
-        })
-        .collect()
+    flights.iter().map(|f| fly(f, filter, pilot, latency_s)).collect()
+}
+
+/// Fly one flight with one pilot.
+fn fly(
+    f: &PlannedFlight,
+    filter: &FilterConfig,
+    pilot: Pilot<'_>,
+    latency_s: f64,
+) -> std::result::Result<LoopTrace, String> {
+    let mut cfg = ResilientConfig { latency_s, ..ResilientConfig::default() };
+    let online: Option<Box<dyn OnlineDetector + '_>> = match pilot {
+        Pilot::Fitted(d, setting) => {
+            cfg.detector_channels = d.channels().to_vec();
+            cfg.readmit_nis = Some(ResilientConfig::CHI2_3_99);
+            cfg.rollback_lookback_s = setting.lookback_s;
+            cfg.reset_after_s = setting.reset_after_s;
+            let scored = TrailingMean::new(d.online_at(setting.threshold), setting.smooth, setting.threshold);
+            Some(Box::new(Confirmed::new(Box::new(scored), setting.confirm)))
+        }
+        Pilot::Px4Ekf2 => {
+            cfg.hold_s = 0.0;
+            cfg.reset_after_s = Some(7.0);
+            cfg.detector_channels = GPS_CHANNELS.iter().map(|c| (*c).to_owned()).collect();
+            Some(Box::new(InnovationGate::new(InnovationGate::PX4_GAMMA).map_err(|e| e.to_string())?))
+        }
+        Pilot::None => None,
+        Pilot::Oracle => {
+            cfg.hold_s = 0.0;
+            Some(Box::new(Oracle::new(f.plan.clone())))
+        }
+    };
+    fly_recorded(&f.flight, &f.plan, filter, &cfg, online)
+        .map_err(|e| format!("{} flight {}: {e}", pilot.name(), f.index))
 }
 
 /// Keep the position error of the ramp test flight with the most attacked fixes.
@@ -1389,7 +1529,97 @@ mod tests {
     }
 
     #[test]
-    fn a_bad_f1_tolerance_is_refused_before_anything_is_flown() {
+    fn a_candidate_is_out_of_reach_only_when_its_bound_could_not_be_chosen() {
+        let best = BestSoFar::new(None);
+        assert!(!best.out_of_reach(0.0), "nothing flown yet: every candidate is in reach");
+        best.record(0.8);
+        best.record(0.6);
+        assert!(best.out_of_reach(0.79));
+        assert!(!best.out_of_reach(0.8), "a tie may still win on the pair or the threshold");
+        let tolerant = BestSoFar::new(Some(0.05));
+        tolerant.record(0.8);
+        assert!(!tolerant.out_of_reach(0.8 - 0.05), "at the tolerance: the quieter may win");
+        assert!(tolerant.out_of_reach(0.74));
+        // Any outcome of the flights still to fly stays under the bound.
+        let so_far = Confusion { tp: 3, fp: 2, fn_: 5, tn: 90 };
+        assert!((f1_bound(so_far, 10) - 26.0 / 33.0).abs() < 1e-15);
+        for tp in 0..=10 {
+            for fp in 0..5 {
+                let mut all = so_far;
+                all.add(Confusion { tp, fp, fn_: 10 - tp, tn: 0 });
+                assert!(all.f1() <= f1_bound(so_far, 10), "tp {tp}, fp {fp}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_pruned_search_chooses_what_the_full_search_chooses() {
+        use rand::{RngExt as _, SeedableRng as _};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let mut pruned_any = false;
+        for case in 0..2_000 {
+            let tolerance = [None, Some(0.0), Some(0.05)][case % 3];
+            let attacked: Vec<u64> = (0..rng.random_range(1..5)).map(|_| rng.random_range(0..12)).collect();
+            // Candidates as the per-flight confusions their flights would give; few fixes, so
+            // that F1 ties are common.
+            let mut candidates: Vec<(Flown, Vec<Confusion>)> = (0..rng.random_range(1..10))
+                .map(|k| {
+                    let per_flight: Vec<Confusion> = attacked
+                        .iter()
+                        .map(|&a| {
+                            let tp = rng.random_range(0..=a);
+                            Confusion { tp, fp: rng.random_range(0..6), fn_: a - tp, tn: 50 }
+                        })
+                        .collect();
+                    let mut total = Confusion::default();
+                    per_flight.iter().for_each(|c| total.add(*c));
+                    #[allow(clippy::cast_precision_loss)]
+                    let setting = LoopSetting {
+                        threshold: k as f64,
+                        lookback_s: 0.0,
+                        reset_after_s: None,
+                        confirm: 1,
+                        smooth: 0,
+                    };
+                    let flown = Flown {
+                        setting,
+                        pair: rng.random_range(0..2),
+                        f1: total.f1(),
+                        alarm_events_per_clean_min: f64::from(rng.random_range(0..4_u8)),
+                    };
+                    (flown, per_flight)
+                })
+                .collect();
+            let all: Vec<Flown> = candidates.iter().map(|(f, _)| *f).collect();
+            let full = choose(&all, tolerance).map(|c| (c.pair, c.setting.threshold));
+            // Flown in a random order, each as `fly_within_reach` flies it.
+            for i in (1..candidates.len()).rev() {
+                candidates.swap(i, rng.random_range(0..=i));
+            }
+            let best = BestSoFar::new(tolerance);
+            let mut kept = Vec::new();
+            for (flown, per_flight) in &candidates {
+                let (mut so_far, mut still_to_fly) = (Confusion::default(), attacked.iter().sum::<u64>());
+                let out = per_flight.iter().zip(&attacked).any(|(c, a)| {
+                    so_far.add(*c);
+                    still_to_fly -= a;
+                    best.out_of_reach(f1_bound(so_far, still_to_fly))
+                });
+                if out {
+                    pruned_any = true;
+                } else {
+                    best.record(flown.f1);
+                    kept.push(*flown);
+                }
+            }
+            let pruned = choose(&kept, tolerance).map(|c| (c.pair, c.setting.threshold));
+            assert_eq!(pruned, full, "case {case}, tolerance {tolerance:?}");
+        }
+        assert!(pruned_any, "the cases exercise the pruning");
+    }
+
+    #[test]
+    fn a_bad_f1_tolerance_or_confirmation_is_refused_before_anything_is_flown() {
         let data = |seed| {
             let flight = baselines::synthetic::SyntheticFlight::new(2_000, seed).generate(&[]).unwrap();
             LabelledResidues::new(vec![flight]).unwrap()
@@ -1402,6 +1632,9 @@ mod tests {
             let err = loop_setting(&det, &[], &filter, candidates).unwrap_err();
             assert!(err.contains("loop_f1_tolerance"), "{err}");
         }
+        let candidates = LoopCandidates { confirm: &[1, 0], smooth: &[0], f1_tolerance: None };
+        let err = loop_setting(&det, &[], &filter, candidates).unwrap_err();
+        assert!(err.contains("loop_confirm"), "{err}");
     }
 
     #[test]
