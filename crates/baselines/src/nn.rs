@@ -231,9 +231,37 @@ impl PerStepNet for CnnNet {
         // Conv1d wants b × channels × l; causal: k − 1 zeros on the left, none on the right.
         let pad = self.kernel - 1;
         let h = x.transpose(1, 2)?.pad_with_zeros(D::Minus1, pad, 0)?;
-        let h = self.conv1.forward(&h)?.relu()?.pad_with_zeros(D::Minus1, pad, 0)?;
-        let h = self.conv2.forward(&h)?.relu()?;
-        self.head.forward(&h)?.squeeze(1)
+        let h = conv1d_unfolded(&self.conv1, &h)?.relu()?.pad_with_zeros(D::Minus1, pad, 0)?;
+        let h = conv1d_unfolded(&self.conv2, &h)?.relu()?;
+        conv1d_unfolded(&self.head, &h)?.squeeze(1)
+    }
+}
+
+/// `conv.forward(x)` (`b × c_in × l` in, `b × c_out × (l − k + 1)` out, stride 1, no padding)
+/// as the product of the unfolded windows with the kernel, so that both gradients are right.
+/// candle 0.11.1's CPU `conv1d` backward convolves with a transposed, non-contiguous kernel,
+/// and its im2col path then multiplies the kernel's original storage instead of the
+/// contiguous copy: the kernel's gradient comes out wrong (huggingface/candle#3836, open;
+/// `conv1d` itself against finite differences was off by up to 1.0 on the test case below,
+/// where this function is within 10⁻⁸). The weights keep `Conv1d`'s names and shapes.
+fn conv1d_unfolded(conv: &Conv1d, x: &Tensor) -> candle_core::Result<Tensor> {
+    let cfg = conv.config();
+    if (cfg.padding, cfg.stride, cfg.dilation, cfg.groups) != (0, 1, 1, 1) {
+        candle_core::bail!("conv1d_unfolded: stride 1, no padding, dilation or groups only");
+    }
+    let w = conv.weight();
+    let (c_out, c_in, k) = w.dims3()?;
+    let (b, _, l) = x.dims3()?;
+    let Some(l_out) = (l + 1).checked_sub(k).filter(|&n| n > 0) else {
+        candle_core::bail!("conv1d_unfolded: {l} steps, shorter than the kernel's {k}");
+    };
+    let taps = (0..k).map(|j| x.narrow(2, j, l_out)).collect::<candle_core::Result<Vec<_>>>()?;
+    // b × c_in × l_out × k → (b · l_out) × (c_in · k), in the order of the kernel's entries.
+    let cols = Tensor::stack(&taps, 3)?.permute((0, 2, 1, 3))?.contiguous()?.reshape((b * l_out, c_in * k))?;
+    let y = cols.matmul(&w.reshape((c_out, c_in * k))?.t()?)?.reshape((b, l_out, c_out))?.transpose(1, 2)?;
+    match conv.bias() {
+        Some(bias) => y.broadcast_add(&bias.reshape((1, c_out, 1))?),
+        None => Ok(y),
     }
 }
 
@@ -738,5 +766,62 @@ impl Lstm {
     /// As [`Cnn::decode`].
     pub fn decode(manifest: &str, weights: &[u8]) -> Result<Self> {
         decode_neural("LSTM", manifest, weights, |m, c, vb| LstmNet::new(m, c.hidden, vb))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::Var;
+
+    #[allow(clippy::cast_precision_loss)]
+    fn pattern(n: usize, a: usize, m: usize) -> Vec<f64> {
+        (0..n).map(|i| ((i * a % m) as f64 - (m / 2) as f64) / m as f64).collect()
+    }
+
+    #[test]
+    fn the_unfolded_convolution_is_conv1d_with_gradients_that_match_finite_differences() -> candle_core::Result<()> {
+        let dev = Device::Cpu;
+        let (b, c_in, c_out, l, k) = (2, 3, 4, 12, 5);
+        let x0 = pattern(b * c_in * l, 37, 17);
+        let w0 = pattern(c_out * c_in * k, 29, 13);
+        let bias = Tensor::from_vec(pattern(c_out, 5, 7), c_out, &dev)?;
+        let r = Tensor::from_vec(pattern(b * c_out * (l - k + 1), 11, 19), (b, c_out, l - k + 1), &dev)?;
+        let conv = |w: &Tensor| Conv1d::new(w.clone(), Some(bias.clone()), Conv1dConfig::default());
+        let loss = |x: &[f64], w: &[f64]| -> candle_core::Result<f64> {
+            let x = Tensor::from_slice(x, (b, c_in, l), &dev)?;
+            let w = Tensor::from_slice(w, (c_out, c_in, k), &dev)?;
+            conv1d_unfolded(&conv(&w), &x)?.mul(&r)?.sum_all()?.to_scalar::<f64>()
+        };
+        let xv = Var::from_tensor(&Tensor::from_slice(&x0, (b, c_in, l), &dev)?)?;
+        let wv = Var::from_tensor(&Tensor::from_slice(&w0, (c_out, c_in, k), &dev)?)?;
+        let y = conv1d_unfolded(&conv(wv.as_tensor()), xv.as_tensor())?;
+        let reference = conv(wv.as_tensor()).forward(xv.as_tensor())?;
+        let diff = (&y - &reference)?.abs()?.max_all()?.to_scalar::<f64>()?;
+        assert!(diff < 1e-12, "forward differs from conv1d by {diff}");
+        let grads = y.mul(&r)?.sum_all()?.backward()?;
+        let gw: Vec<f64> = grads.get(&wv).expect("kernel gradient").flatten_all()?.to_vec1()?;
+        let gx: Vec<f64> = grads.get(&xv).expect("input gradient").flatten_all()?.to_vec1()?;
+        let h = 1e-6;
+        let central = |f: &dyn Fn(f64) -> candle_core::Result<f64>| -> candle_core::Result<f64> {
+            Ok((f(h)? - f(-h)?) / (2.0 * h))
+        };
+        for (i, g) in gw.iter().enumerate() {
+            let fd = central(&|d| {
+                let mut w = w0.clone();
+                w[i] += d;
+                loss(&x0, &w)
+            })?;
+            assert!((fd - g).abs() < 1e-8, "kernel entry {i}: {g} against {fd}");
+        }
+        for (i, g) in gx.iter().enumerate() {
+            let fd = central(&|d| {
+                let mut x = x0.clone();
+                x[i] += d;
+                loss(&x, &w0)
+            })?;
+            assert!((fd - g).abs() < 1e-8, "input entry {i}: {g} against {fd}");
+        }
+        Ok(())
     }
 }
