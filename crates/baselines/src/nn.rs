@@ -802,26 +802,20 @@ mod tests {
         let grads = y.mul(&r)?.sum_all()?.backward()?;
         let gw: Vec<f64> = grads.get(&wv).expect("kernel gradient").flatten_all()?.to_vec1()?;
         let gx: Vec<f64> = grads.get(&xv).expect("input gradient").flatten_all()?.to_vec1()?;
-        let h = 1e-6;
-        let central = |f: &dyn Fn(f64) -> candle_core::Result<f64>| -> candle_core::Result<f64> {
-            Ok((f(h)? - f(-h)?) / (2.0 * h))
+        // Each entry of `grad` against the central difference of the loss at `base` ± h there.
+        let check = |what: &str, grad: &[f64], base: &[f64], loss_at: &dyn Fn(&[f64]) -> candle_core::Result<f64>| {
+            let h = 1e-6;
+            for (i, g) in grad.iter().enumerate() {
+                let (mut up, mut down) = (base.to_vec(), base.to_vec());
+                up[i] += h;
+                down[i] -= h;
+                let fd = (loss_at(&up)? - loss_at(&down)?) / (2.0 * h);
+                assert!((fd - g).abs() < 1e-8, "{what} entry {i}: {g} against {fd}");
+            }
+            candle_core::Result::Ok(())
         };
-        for (i, g) in gw.iter().enumerate() {
-            let fd = central(&|d| {
-                let mut w = w0.clone();
-                w[i] += d;
-                loss(&x0, &w)
-            })?;
-            assert!((fd - g).abs() < 1e-8, "kernel entry {i}: {g} against {fd}");
-        }
-        for (i, g) in gx.iter().enumerate() {
-            let fd = central(&|d| {
-                let mut x = x0.clone();
-                x[i] += d;
-                loss(&x, &w0)
-            })?;
-            assert!((fd - g).abs() < 1e-8, "input entry {i}: {g} against {fd}");
-        }
+        check("kernel", &gw, &w0, &|w| loss(&x0, w))?;
+        check("input", &gx, &x0, &|x| loss(x, &w0))?;
         Ok(())
     }
 }
