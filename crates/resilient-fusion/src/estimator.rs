@@ -29,7 +29,10 @@
 //!    are re-estimated from the fixes that follow. The reset is a decision to trust GPS: as
 //!    after step 4, the detector's alarms go unheeded until it clears once, and no rollback
 //!    rewinds past it, so an alarm stuck on the drift its own exclusion caused costs one
-//!    bounded exclusion, not one every `reset_after_s`.
+//!    bounded exclusion, not one every `reset_after_s`. A rollback that rewinds to before the
+//!    re-admission ending an exclusion undoes every fix fused since and reopens that exclusion,
+//!    so its clock counts all the dead reckoning, however often an alarm returns within the
+//!    latency and look-back of each re-admission.
 //!
 //! Positions in local ENU metres, times in seconds.
 
@@ -204,6 +207,9 @@ pub struct ResilientEstimator<'d> {
     /// Alarms are unheeded until the detector clears (after a re-admission by consistency).
     alarms_overridden: bool,
     excluded_intervals: Vec<(f64, f64)>,
+    /// Time of the last reset onto a fix: no rollback undoes it, nor reopens the exclusion it
+    /// ended.
+    last_reset: f64,
     alarm_times: Vec<f64>,
     buffer: VecDeque<Event>,
     n_rollbacks: usize,
@@ -245,6 +251,7 @@ impl<'d> ResilientEstimator<'d> {
             consistent_since: None,
             alarms_overridden: false,
             excluded_intervals: Vec::new(),
+            last_reset: f64::NEG_INFINITY,
             alarm_times: Vec::new(),
             buffer: VecDeque::new(),
             n_rollbacks: 0,
@@ -364,6 +371,7 @@ impl<'d> ResilientEstimator<'d> {
             }
             self.alarms_overridden = true;
             self.buffer.clear();
+            self.last_reset = t;
             self.n_resets += 1;
         }
         let excluded = self.excluded_since.is_some();
@@ -474,12 +482,26 @@ impl ResilientEstimator<'_> {
     /// `t_residue − rollback_lookback_s` and replay every buffered input since, fusing no GPS
     /// (the fixes from `t_residue` on are the alarmed ones, those of the look-back the ones the
     /// detection delay let through).
+    ///
+    /// A rewind to a step at or before the re-admission that ended an earlier exclusion undoes
+    /// every fix fused since, so the exclusion is reopened: it runs on from its own start, and
+    /// so does the clock of [`ResilientConfig::reset_after_s`]. Otherwise a detector that alarms
+    /// again within the look-back of each re-admission would keep the estimate dead reckoning
+    /// without ever reaching the reset that bounds it. An exclusion ended by a reset stays
+    /// closed: the buffer starts at the reset, and replaying skips its fix but keeps the reset.
     fn rollback_to(&mut self, t_residue: f64) -> Result<()> {
         let from = t_residue - self.cfg.rollback_lookback_s - 1e-9;
         let Some(start) = self.buffer.iter().position(|e| matches!(e, Event::Meas(m, _) if m.t >= from)) else {
             return Ok(());
         };
-        let Some(Event::Meas(_, ckpt)) = self.buffer.get(start) else { return Ok(()) };
+        let Some(Event::Meas(m, ckpt)) = self.buffer.get(start) else { return Ok(()) };
+        while let Some(&(t0, t1)) = self.excluded_intervals.last()
+            && t1 >= m.t - 1e-9
+            && t1 > self.last_reset + 1e-9
+        {
+            self.excluded_intervals.pop();
+            self.excluded_since = Some(t0);
+        }
         let mut est = (**ckpt).clone();
         for ev in self.buffer.iter_mut().skip(start) {
             match ev {

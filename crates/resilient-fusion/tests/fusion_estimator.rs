@@ -1,6 +1,7 @@
 //! Tests of the resilient estimator's state machine (`estimator::ResilientEstimator`) with a
 //! scripted detector on an open-loop simulated flight: exclusion starts after the decision
-//! latency, GPS is re-admitted after the hold time, and configs are `Send + Sync`.
+//! latency, GPS is re-admitted after the hold time, a rollback into an earlier exclusion
+//! reopens it, and configs are `Send + Sync`.
 
 use ekf_residue::detector::{OnlineDecision, OnlineDetector};
 use ekf_residue::error::DetectError;
@@ -12,28 +13,33 @@ use resilient_fusion::{FusionError, Result};
 use uav_dynamics::sim::{SimConfig, simulate};
 use uav_dynamics::trajectory::{ShapeConfig, square};
 
-/// Alarms on every residue step with `t0 < t ≤ t1`.
+/// Alarms on every residue step with `t0 < t ≤ t1` for one of its windows `(t0, t1)`.
 struct Scripted {
-    t0: f64,
-    t1: f64,
+    windows: Vec<(f64, f64)>,
 }
 
 impl OnlineDetector for Scripted {
     fn update(&mut self, step: &ResidueStep<'_>) -> Result<OnlineDecision, DetectError> {
-        let alarm = step.t > self.t0 && step.t <= self.t1;
+        let alarm = self.windows.iter().any(|&(t0, t1)| step.t > t0 && step.t <= t1);
         Ok(OnlineDecision { score: f64::from(u8::from(alarm)), alarm })
     }
 
     fn reset(&mut self) {}
 }
 
-/// Run the estimator over a 30 s square flight with the scripted detector; returns the
-/// exclusion intervals and the number of rollbacks.
-fn excluded(cfg: &ResilientConfig, t0: f64, t1: f64) -> Result<(Vec<(f64, f64)>, usize)> {
+/// What the estimator did over a flight.
+struct Outcome {
+    excluded: Vec<(f64, f64)>,
+    n_rollbacks: usize,
+    n_resets: usize,
+}
+
+/// Run the estimator over a 30 s square flight with a detector alarming in `windows`.
+fn excluded(cfg: &ResilientConfig, windows: &[(f64, f64)]) -> Result<Outcome> {
     let sim = SimConfig::default();
     let flight = simulate(&sim, &square(&ShapeConfig::default())?, 30.0, 4)?;
     let fc = FilterConfig::for_sim(ModelKind::ModelII, &sim);
-    let mut est = ResilientEstimator::new(&fc, cfg, Some(Box::new(Scripted { t0, t1 })))?;
+    let mut est = ResilientEstimator::new(&fc, cfg, Some(Box::new(Scripted { windows: windows.to_vec() })))?;
     let s = &flight.streams;
     let (mut g, mut a, mut v) = (0, 0, 0);
     for imu in &s.imu {
@@ -50,20 +56,20 @@ fn excluded(cfg: &ResilientConfig, t0: f64, t1: f64) -> Result<(Vec<(f64, f64)>,
     if err > 2.0 {
         return Err(FusionError::Config { field: "estimate", msg: format!("final error {err} m") });
     }
-    Ok((est.excluded_intervals(30.0), est.n_rollbacks()))
+    Ok(Outcome { excluded: est.excluded_intervals(30.0), n_rollbacks: est.n_rollbacks(), n_resets: est.n_resets() })
 }
 
 #[test]
 fn exclusion_follows_latency_and_hold() -> Result<()> {
     let cfg = ResilientConfig { latency_s: 0.5, hold_s: 2.0, ..ResilientConfig::default() };
-    let (iv, n_rollbacks) = excluded(&cfg, 10.0, 15.0)?;
+    let Outcome { excluded: iv, n_rollbacks, .. } = excluded(&cfg, &[(10.0, 15.0)])?;
     // First alarm on the residue at 10.1 s, usable at 10.6 s; last alarm at 15.0 s, usable at
     // 15.5 s; re-admitted 2 s later.
     assert_eq!(iv.len(), 1, "{iv:?}");
     assert!((iv[0].0 - 10.6).abs() < 1e-6 && (iv[0].1 - 17.5).abs() < 1e-6, "{iv:?}");
     assert_eq!(n_rollbacks, 1);
     let off = ResilientConfig { rollback: Rollback::Off, ..cfg };
-    let (iv_off, n_off) = excluded(&off, 10.0, 15.0)?;
+    let Outcome { excluded: iv_off, n_rollbacks: n_off, .. } = excluded(&off, &[(10.0, 15.0)])?;
     assert_eq!(iv_off, iv);
     assert_eq!(n_off, 0);
     Ok(())
@@ -72,10 +78,40 @@ fn exclusion_follows_latency_and_hold() -> Result<()> {
 #[test]
 fn zero_latency_gates_the_alarmed_fix_itself() -> Result<()> {
     let cfg = ResilientConfig { latency_s: 0.0, hold_s: 1.0, ..ResilientConfig::default() };
-    let (iv, n_rollbacks) = excluded(&cfg, 20.0, 22.0)?;
+    let Outcome { excluded: iv, n_rollbacks, .. } = excluded(&cfg, &[(20.0, 22.0)])?;
     assert_eq!(iv.len(), 1, "{iv:?}");
     assert!((iv[0].0 - 20.1).abs() < 1e-6 && (iv[0].1 - 23.0).abs() < 1e-6, "{iv:?}");
     assert_eq!(n_rollbacks, 0);
+    Ok(())
+}
+
+#[test]
+fn a_rollback_into_an_earlier_exclusion_reopens_it_and_its_reset_clock() -> Result<()> {
+    // Latency 1 s, hold 1 s, look-back 0.4 s. Each window alarms for 0.3 s; GPS is re-admitted
+    // 2 s after a window's last alarmed residue, and the next window's first alarm, 0.3 s
+    // later, rewinds 0.4 s: to before that re-admission, undoing every fix fused since.
+    let cfg = ResilientConfig {
+        latency_s: 1.0,
+        hold_s: 1.0,
+        rollback_lookback_s: 0.4,
+        reset_after_s: Some(5.0),
+        ..ResilientConfig::default()
+    };
+    let windows: Vec<(f64, f64)> = (0..5).map(|i| 10.0 + 2.5 * f64::from(i)).map(|a| (a, a + 0.3)).collect();
+    let out = excluded(&cfg, &windows)?;
+    // The first three windows make one exclusion, from the first alarm (residue 10.1 s, usable
+    // at 11.1 s) to the reset 5 s later. The fourth starts a new one (its rollback stops at the
+    // reset), which the fifth reopens.
+    assert_eq!(out.n_resets, 1);
+    assert_eq!(out.n_rollbacks, windows.len());
+    assert_eq!(out.excluded.len(), 2, "{:?}", out.excluded);
+    assert!((out.excluded[0].0 - 11.1).abs() < 1e-6 && (out.excluded[0].1 - 16.1).abs() < 1e-6, "{:?}", out.excluded);
+    assert!((out.excluded[1].0 - 18.6).abs() < 1e-6 && (out.excluded[1].1 - 22.3).abs() < 1e-6, "{:?}", out.excluded);
+    // Without the look-back each rollback lands after the re-admission before it: the
+    // exclusions stay apart and none lasts 5 s.
+    let apart = excluded(&ResilientConfig { rollback_lookback_s: 0.0, ..cfg }, &windows)?;
+    assert_eq!(apart.n_resets, 0);
+    assert_eq!(apart.excluded.len(), windows.len(), "{:?}", apart.excluded);
     Ok(())
 }
 
