@@ -505,42 +505,60 @@ impl Estimator {
 
     /// Reset onto a GNSS fix after a long rejection, as PX4 EKF2 does when GNSS fusion has
     /// timed out (`resetVelocityToGnss` and `resetHorizontalPositionToGnss`): the position
-    /// estimate moves onto `p` (metres, ENU). The velocity and the accelerometer bias, the
-    /// states whose error drove the dead reckoning away from the fixes, are known again only
-    /// as at initialisation (variances `InitConfig::sigma_v0²` and `sigma_ba0²`, no
-    /// correlations; [`crate::ekf::Ekf::reset_block`]), so the next fixes re-estimate them.
-    /// The GPS carries no velocity here, so the estimates keep their values and lose their
-    /// confidence. The position covariance, grown while GPS was rejected, is kept. Model II's
-    /// keyframe position moves by the same offset, so the pending VO increment still reads
-    /// relative to the reset position.
+    /// estimate moves onto `p` (metres, ENU). The velocity, whose error drove the dead
+    /// reckoning away from the fixes, takes `velocity = Some((v, var))` (m/s, ENU, variance
+    /// `var` on each axis, e.g. from the trend of the unfused fixes' innovations; this GPS
+    /// reports no velocity of its own), or with `None` is known again only as at initialisation
+    /// (variance `InitConfig::sigma_v0²`, estimate kept). The accelerometer bias is always known
+    /// again only as at initialisation (variance `sigma_ba0²`). Either block loses its
+    /// correlations ([`crate::ekf::Ekf::reset_block`]), so the next fixes re-estimate it. The
+    /// position covariance, grown while GPS was rejected, is kept. Model II's keyframe position
+    /// moves by the same offset, so the pending VO increment still reads relative to the reset
+    /// position.
     ///
     /// # Errors
-    /// [`FilterError::NonFiniteState`] for a non-finite `p`.
-    pub fn reset_onto_fix(&mut self, p: &Vector3<f64>) -> Result<(), FilterError> {
+    /// [`FilterError::NonFiniteState`] for a non-finite `p` or `v`, [`FilterError::Config`]
+    /// for a negative or non-finite `var`.
+    pub fn reset_onto_fix(
+        &mut self,
+        p: &Vector3<f64>,
+        velocity: Option<(Vector3<f64>, f64)>,
+    ) -> Result<(), FilterError> {
         if !p.iter().all(|v| v.is_finite()) {
             return Err(FilterError::NonFiniteState { t: self.t(), what: "reset position" });
         }
-        let var_v = self.cfg.init.sigma_v0 * self.cfg.init.sigma_v0;
+        if velocity.is_some_and(|(v, _)| !v.iter().all(|c| c.is_finite())) {
+            return Err(FilterError::NonFiniteState { t: self.t(), what: "reset velocity" });
+        }
+        let var_v = velocity.map_or(self.cfg.init.sigma_v0 * self.cfg.init.sigma_v0, |(_, var)| var);
         let var_ba = self.cfg.init.sigma_ba0 * self.cfg.init.sigma_ba0;
-        fn forget<const N: usize>(ekf: &mut Ekf<N>, var_v: f64, var_ba: f64) -> Result<(), FilterError> {
+        let v = velocity.map(|(v, _)| v);
+        fn reset_states<const N: usize>(
+            ekf: &mut Ekf<N>,
+            p: &Vector3<f64>,
+            v: Option<Vector3<f64>>,
+            var_v: f64,
+            var_ba: f64,
+        ) -> Result<(), FilterError> {
+            ekf.map_state(|x| {
+                x.fixed_rows_mut::<3>(IDX_P).copy_from(p);
+                if let Some(v) = v {
+                    x.fixed_rows_mut::<3>(IDX_V).copy_from(&v);
+                }
+            });
             ekf.reset_block::<3>(IDX_V, var_v)?;
             ekf.reset_block::<3>(IDX_BA, var_ba)
         }
         match &mut self.filter {
-            Filter::One(f) => {
-                let ekf = f.ekf_mut();
-                ekf.map_state(|x| x.fixed_rows_mut::<3>(IDX_P).copy_from(p));
-                forget(ekf, var_v, var_ba)
-            }
+            Filter::One(f) => reset_states(f.ekf_mut(), p, v, var_v, var_ba),
             Filter::Two(f) => {
                 let ekf = f.ekf_mut();
                 ekf.map_state(|x| {
                     let delta = p - x.fixed_rows::<3>(IDX_P);
-                    x.fixed_rows_mut::<3>(IDX_P).copy_from(p);
                     let pf = x.fixed_rows::<3>(uav_dynamics::model2::IDX_PF) + delta;
                     x.fixed_rows_mut::<3>(uav_dynamics::model2::IDX_PF).copy_from(&pf);
                 });
-                forget(ekf, var_v, var_ba)
+                reset_states(ekf, p, v, var_v, var_ba)
             }
         }
     }

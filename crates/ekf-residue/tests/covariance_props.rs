@@ -105,8 +105,9 @@ proptest! {
     }
 
     #[test]
-    fn a_reset_onto_a_fix_moves_the_position_and_forgets_the_velocity(
-        seed in 0u64..10_000, model2 in any::<bool>(), dx in -50.0..50.0f64, dy in -50.0..50.0f64
+    fn a_reset_onto_a_fix_moves_the_position_and_forgets_or_sets_the_velocity(
+        seed in 0u64..10_000, model2 in any::<bool>(), dx in -50.0..50.0f64, dy in -50.0..50.0f64,
+        set_v in any::<bool>(), vx in -10.0..10.0f64, var in 0.0..5.0f64
     ) {
         let (sim, flight) = common::eight_flight(NoiseShape::Gaussian, 4.0, seed);
         let model = if model2 { ModelKind::ModelII } else { ModelKind::ModelI };
@@ -116,14 +117,19 @@ proptest! {
         for imu in s.imu.iter().skip(1).take(400) {
             est.imu(imu).unwrap();
         }
+        let v0 = est.estimate().v;
         let fix = est.estimate().p + Vector3::new(dx, dy, 1.0);
-        est.reset_onto_fix(&fix).unwrap();
+        let velocity = set_v.then_some((Vector3::new(vx, 1.0, -0.5), var));
+        est.reset_onto_fix(&fix, velocity).unwrap();
         let e = est.estimate();
         prop_assert!((e.p - fix).norm() < 1e-12);
-        let var_v = cfg.init.sigma_v0 * cfg.init.sigma_v0;
+        let (want_v, var_v) = velocity.unwrap_or((v0, cfg.init.sigma_v0 * cfg.init.sigma_v0));
+        prop_assert!((e.v - want_v).norm() < 1e-12, "{} vs {want_v}", e.v);
         prop_assert!((e.v_cov - SMatrix::<f64, 3, 3>::identity() * var_v).abs().max() == 0.0, "{}", e.v_cov);
         let (min_eig, asym) = est.covariance_health();
         prop_assert!(asym == 0.0 && min_eig > -1e-12 * est.covariance_trace(), "{min_eig} {asym}");
-        prop_assert!(est.reset_onto_fix(&Vector3::new(f64::NAN, 0.0, 0.0)).is_err());
+        prop_assert!(est.reset_onto_fix(&Vector3::new(f64::NAN, 0.0, 0.0), None).is_err());
+        prop_assert!(est.reset_onto_fix(&fix, Some((Vector3::new(f64::NAN, 0.0, 0.0), 1.0))).is_err());
+        prop_assert!(est.reset_onto_fix(&fix, Some((Vector3::zeros(), -1.0))).is_err());
     }
 }

@@ -63,7 +63,7 @@ use crate::runner::{fit, read_json_cache, write_json_cache};
 use crate::table::to_csv;
 
 /// Bumped when the unit's computation changes, so cached units are recomputed.
-const UNIT_VERSION: u32 = 7;
+const UNIT_VERSION: u32 = 8;
 
 /// Seconds after an attack ends over which `max_error_after_m` is taken.
 pub const AFTER_WINDOW_S: f64 = 30.0;

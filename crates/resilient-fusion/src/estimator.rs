@@ -43,11 +43,12 @@ use ekf_residue::residues::{
     Estimator, FilterConfig, GPS_CHANNELS, GpsFusion, Measurements, StateEstimate, UpdateOutcome,
 };
 use ekf_residue::series::ResidueStep;
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Vector3};
 use serde::{Deserialize, Serialize};
 use uav_dynamics::sensors::ImuSample;
 
 use crate::error::{FusionError, Result};
+use crate::innovation_trend::InnovationTrend;
 
 /// What happens to the GPS fixes fused during the decision latency once an alarm arrives.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -97,6 +98,12 @@ pub struct ResilientConfig {
     /// EKF2 behaves as `Some(7.0)`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reset_after_s: Option<f64>,
+    /// Window of unfused fixes whose innovation trend gives the velocity a reset takes, seconds
+    /// (module doc, step 5; [`crate::innovation_trend`]). Default 2.0. With 0, or when a
+    /// straight line does not explain the fixes of the window, the reset forgets the velocity
+    /// as at initialisation.
+    #[serde(default = "default_reset_velocity_window_s")]
+    pub reset_velocity_window_s: f64,
     /// NIS gate of the GPS channels (`gps_x gps_y gps_z`, against the prior) under which an
     /// exclusion ends although the detector alarms (module doc, step 4). Default `None`:
     /// exclusion lasts while alarms do. [`ResilientConfig::CHI2_3_99`] is the χ²₃ 0.99 quantile.
@@ -114,9 +121,14 @@ impl Default for ResilientConfig {
             rollback: Rollback::default(),
             rollback_lookback_s: 0.0,
             reset_after_s: None,
+            reset_velocity_window_s: default_reset_velocity_window_s(),
             readmit_nis: None,
         }
     }
+}
+
+fn default_reset_velocity_window_s() -> f64 {
+    2.0
 }
 
 impl ResilientConfig {
@@ -134,6 +146,7 @@ impl ResilientConfig {
             ("hold_s", self.hold_s),
             ("readmit_inflation_m2", self.readmit_inflation_m2),
             ("rollback_lookback_s", self.rollback_lookback_s),
+            ("reset_velocity_window_s", self.reset_velocity_window_s),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(FusionError::Config { field, msg: format!("must be finite and non-negative, got {v}") });
@@ -210,6 +223,8 @@ pub struct ResilientEstimator<'d> {
     /// Time of the last reset onto a fix: no rollback undoes it, nor reopens the exclusion it
     /// ended.
     last_reset: f64,
+    /// GPS innovations of the recent fixes, for the velocity of a reset.
+    trend: InnovationTrend,
     alarm_times: Vec<f64>,
     buffer: VecDeque<Event>,
     n_rollbacks: usize,
@@ -252,6 +267,7 @@ impl<'d> ResilientEstimator<'d> {
             alarms_overridden: false,
             excluded_intervals: Vec::new(),
             last_reset: f64::NEG_INFINITY,
+            trend: InnovationTrend::default(),
             alarm_times: Vec::new(),
             buffer: VecDeque::new(),
             n_rollbacks: 0,
@@ -367,7 +383,17 @@ impl<'d> ResilientEstimator<'d> {
                 self.excluded_intervals.push((t0, t));
             }
             if let (Some(est), Some(p)) = (self.est.as_mut(), meas.gps) {
-                est.reset_onto_fix(&p)?;
+                let init = &self.filter_cfg.init;
+                let velocity = self
+                    .trend
+                    .velocity_correction(
+                        t,
+                        self.cfg.reset_velocity_window_s,
+                        &self.filter_cfg.meas.gps_sigma_m,
+                        init.sigma_ba0,
+                    )
+                    .map(|c| (est.estimate().v + c.dv, c.var.min(init.sigma_v0 * init.sigma_v0)));
+                est.reset_onto_fix(&p, velocity)?;
             }
             self.alarms_overridden = true;
             self.buffer.clear();
@@ -393,8 +419,22 @@ impl<'d> ResilientEstimator<'d> {
         }
         let Some(est) = self.est.as_mut() else { return Ok(None) };
         let outcome = est.measure(meas, fusion)?;
+        self.record_gps_innovation(outcome.as_ref());
         let gps_fused = outcome.as_ref().is_some_and(|o| o.gps_fused);
         Ok(Some(FusionStep { t, decision, gps_excluded: excluded, gps_fused, reset, outcome }))
+    }
+
+    /// Keep the GPS innovation of a step for the velocity of a later reset (only when resets
+    /// happen and take a velocity).
+    fn record_gps_innovation(&mut self, outcome: Option<&UpdateOutcome>) {
+        if self.cfg.reset_after_s.is_none() || self.cfg.reset_velocity_window_s <= 0.0 {
+            return;
+        }
+        if let Some(out) = outcome
+            && let Some(r) = gps_innovation(out)
+        {
+            self.trend.push(out.t, r, out.gps_fused, self.cfg.reset_velocity_window_s);
+        }
     }
 
     /// Whether GPS has been excluded for [`ResilientConfig::reset_after_s`] at `t`.
@@ -502,15 +542,20 @@ impl ResilientEstimator<'_> {
             self.excluded_intervals.pop();
             self.excluded_since = Some(t0);
         }
+        self.trend.truncate_from(m.t);
         let mut est = (**ckpt).clone();
+        let mut replayed = Vec::new();
         for ev in self.buffer.iter_mut().skip(start) {
             match ev {
                 Event::Imu(s) => est.imu(s)?,
                 Event::Meas(m, ck) => {
                     **ck = est.clone();
-                    est.measure(m, GpsFusion::Skip)?;
+                    replayed.extend(est.measure(m, GpsFusion::Skip)?);
                 }
             }
+        }
+        for out in &replayed {
+            self.record_gps_innovation(Some(out));
         }
         self.est = Some(est);
         self.n_rollbacks += 1;
@@ -550,6 +595,15 @@ pub fn select_channels<S: AsRef<str>>(out: &UpdateOutcome, channels: &[S]) -> Re
     let nis = r.dot(&chol.solve(&r));
     let s_row_major: Vec<f64> = (0..m).flat_map(|i| (0..m).map(move |j| (i, j))).map(|(i, j)| s[(i, j)]).collect();
     Ok((r.iter().copied().collect(), s_row_major, nis))
+}
+
+/// The GPS part (`gps_x gps_y gps_z`) of an innovation, if the group has a fix.
+fn gps_innovation(out: &UpdateOutcome) -> Option<Vector3<f64>> {
+    let mut r = Vector3::zeros();
+    for (i, c) in GPS_CHANNELS.iter().enumerate() {
+        r[i] = out.r_k[out.channels.iter().position(|k| k == c)?];
+    }
+    Some(r)
 }
 
 /// The simplest online detector: alarm when the step's NIS exceeds a chi-squared quantile.

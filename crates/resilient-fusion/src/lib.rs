@@ -29,6 +29,7 @@
 pub mod error;
 pub mod estimator;
 pub mod gates;
+pub mod innovation_trend;
 pub mod recorded;
 pub mod scenario;
 
