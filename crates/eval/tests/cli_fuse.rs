@@ -224,6 +224,22 @@ fn fuse_flies_a_flight_folder_in_the_loop() {
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("reset_after_s"), "{}", stderr(&o));
     assert!(!bad.exists());
+    // So is a negative window of the reset's velocity.
+    let o = quadformer(&[
+        "fuse",
+        "--in",
+        s(&fixture),
+        "--detector",
+        "nis",
+        "--reset-after-s",
+        "5",
+        "--reset-velocity-window-s=-1",
+        "--out",
+        s(&bad),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("reset_velocity_window_s"), "{}", stderr(&o));
+    assert!(!bad.exists());
     // A confirmation of zero steps is refused by name.
     let o = quadformer(&["fuse", "--in", s(&fixture), "--detector", "nis", "--confirm", "0", "--out", s(&bad)]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));

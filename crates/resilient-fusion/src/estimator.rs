@@ -25,8 +25,11 @@
 //! 5. Optionally, as PX4 EKF2 does (`reset_timeout_max` = 7 s in `EKF/common.h`), GPS that has
 //!    been excluded for [`ResilientConfig::reset_after_s`] is re-admitted with a position
 //!    reset onto the fix ([`Estimator::reset_onto_fix`]), so the estimate jumps onto whatever
-//!    the receiver reports, and its velocity and accelerometer bias, left uncorrected as long,
-//!    are re-estimated from the fixes that follow. The reset is a decision to trust GPS: as
+//!    the receiver reports. Its velocity, left uncorrected as long, takes the velocity error
+//!    that the trend of the last unfused fixes' innovations reveals
+//!    ([`crate::innovation_trend`], as EKF2 resets onto the receiver's velocity), or is forgotten
+//!    when a straight line does not explain those fixes; the accelerometer bias is forgotten.
+//!    The fixes that follow re-estimate what was forgotten. The reset is a decision to trust GPS: as
 //!    after step 4, the detector's alarms go unheeded until it clears once, and no rollback
 //!    rewinds past it, so an alarm stuck on the drift its own exclusion caused costs one
 //!    bounded exclusion, not one every `reset_after_s`. A rollback that rewinds to before the
@@ -93,8 +96,8 @@ pub struct ResilientConfig {
     #[serde(default)]
     pub rollback_lookback_s: f64,
     /// Exclusion time after which GPS is re-admitted with a reset onto the fix (module doc,
-    /// step 5: the position moves onto it, the velocity and accelerometer bias are forgotten),
-    /// seconds. Default `None`: exclusion lasts while alarms do. PX4
+    /// step 5: the position moves onto it, the velocity takes the fixes' trend, the accelerometer
+    /// bias is forgotten), seconds. Default `None`: exclusion lasts while alarms do. PX4
     /// EKF2 behaves as `Some(7.0)`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reset_after_s: Option<f64>,
