@@ -530,6 +530,11 @@ impl Estimator {
         if velocity.is_some_and(|(v, _)| !v.iter().all(|c| c.is_finite())) {
             return Err(FilterError::NonFiniteState { t: self.t(), what: "reset velocity" });
         }
+        if let Some((_, var)) = velocity
+            && !(var.is_finite() && var >= 0.0)
+        {
+            return Err(FilterError::Config { field: "var", msg: format!("must be finite and ≥ 0, got {var}") });
+        }
         let var_v = velocity.map_or(self.cfg.init.sigma_v0 * self.cfg.init.sigma_v0, |(_, var)| var);
         let var_ba = self.cfg.init.sigma_ba0 * self.cfg.init.sigma_ba0;
         let v = velocity.map(|(v, _)| v);

@@ -102,9 +102,11 @@ pub struct ResilientConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reset_after_s: Option<f64>,
     /// Window of unfused fixes whose innovation trend gives the velocity a reset takes, seconds
-    /// (module doc, step 5; [`crate::innovation_trend`]). Default 2.0. With 0, or when a
-    /// straight line does not explain the fixes of the window, the reset forgets the velocity
-    /// as at initialisation.
+    /// (module doc, step 5; [`crate::innovation_trend`]); its variance is at most
+    /// `InitConfig::sigma_v0²`. Default 2.0. With 0, or when the window holds fewer than
+    /// [`crate::innovation_trend::MIN_FIXES`] fixes of the current exclusion, spanning less than a
+    /// quarter of it, or fixes that a straight line does not explain, the reset forgets the
+    /// velocity as at initialisation.
     #[serde(default = "default_reset_velocity_window_s")]
     pub reset_velocity_window_s: f64,
     /// NIS gate of the GPS channels (`gps_x gps_y gps_z`, against the prior) under which an

@@ -11,11 +11,15 @@
 //!
 //! The slope is trusted only where the straight line explains the fixes: per axis, the residual
 //! sum of squares divided by the GPS variance must pass the χ²_{n−2} 0.99 quantile. A burst
-//! that starts or ends inside the window is a step, not a line, and fails it; the reset then
-//! forgets the velocity as at initialisation. A constant offset (a bias spoof) moves the
-//! intercept, not the slope. The variance of the velocity is that of the slope, with the
-//! residual variance no smaller than the GPS variance, plus what an accelerometer-bias error of
-//! `σ_ba0` adds between the window's mean time and the reset.
+//! that starts or ends inside the window is a step, not a line: over 20 fixes of σ 0.5 m a step
+//! larger than about 2.6 m in the middle of the window fails the test, and the reset then
+//! forgets the velocity as at initialisation. A smaller step passes and biases the slope by
+//! 1.5 times its size over the window's length (a 2.5 m step by about 1.9 m/s over 2 s). A
+//! constant offset (a bias spoof) moves the intercept, not the slope; a drifting spoof adds its
+//! rate, as the receiver's own velocity would. Only the trailing run of unfused fixes counts,
+//! so the fit never spans two dead reckonings. The variance of the velocity is that of the
+//! slope, with the residual variance no smaller than the GPS variance, plus what an
+//! accelerometer-bias error of `σ_ba0` adds between the window's mean time and the reset.
 
 use std::collections::VecDeque;
 
@@ -57,10 +61,10 @@ impl InnovationTrend {
         }
     }
 
-    /// The velocity error revealed by the unfused fixes within `window_s` before `t`, or `None`
-    /// when there are fewer than [`MIN_FIXES`] or a straight line does not explain them
-    /// (module doc). `gps_sigma_m` is the fix's σ per axis, `sigma_ba0` the accelerometer-bias
-    /// σ (m/s²).
+    /// The velocity error revealed by the trailing run of unfused fixes within `window_s` before
+    /// `t` (one dead reckoning, never two), or `None` when they are fewer than [`MIN_FIXES`],
+    /// span less than a quarter of the window, or a straight line does not explain them (module
+    /// doc). `gps_sigma_m` is the fix's σ per axis, `sigma_ba0` the accelerometer-bias σ (m/s²).
     #[must_use]
     pub fn velocity_correction(
         &self,
@@ -69,14 +73,17 @@ impl InnovationTrend {
         gps_sigma_m: &[f64; 3],
         sigma_ba0: f64,
     ) -> Option<VelocityCorrection> {
-        let pts: Vec<(f64, Vector3<f64>)> = self
+        let mut pts: Vec<(f64, Vector3<f64>)> = self
             .samples
             .iter()
-            .filter(|&&(ti, _, fused)| !fused && ti >= t - window_s - 1e-9 && ti < t + 1e-9)
+            .rev()
+            .skip_while(|&&(ti, ..)| ti > t + 1e-9)
+            .take_while(|&&(ti, _, fused)| !fused && ti >= t - window_s - 1e-9)
             .map(|&(ti, r, _)| (ti, r))
             .collect();
+        pts.reverse();
         let n = pts.len();
-        if n < MIN_FIXES {
+        if n < MIN_FIXES || pts[n - 1].0 - pts[0].0 < 0.25 * window_s {
             return None;
         }
         let t_mean = pts.iter().map(|p| p.0).sum::<f64>() / n as f64;
@@ -120,7 +127,7 @@ mod tests {
     #[test]
     fn a_linear_drift_gives_its_slope_with_a_small_variance() {
         let v = Vector3::new(1.5, -0.7, 0.2);
-        // ±0.3 m of alternating noise on every axis.
+        // ±0.15 m of alternating noise on every axis.
         let tr = trend(
             |t| {
                 Vector3::new(3.0, -2.0, 1.0)
@@ -154,6 +161,39 @@ mod tests {
         assert!(tr.velocity_correction(12.0, 2.0, &SIGMA, 0.44).is_none());
         let tr = trend(Vector3::repeat, MIN_FIXES - 1, false);
         assert!(tr.velocity_correction(12.0, 2.0, &SIGMA, 0.44).is_none());
+        // Five fixes within 4 ms span too little time for a slope.
+        let mut tr = InnovationTrend::default();
+        for k in 0..5 {
+            tr.push(12.0 - 1e-3 * f64::from(k), Vector3::repeat(f64::from(k)), false, 5.0);
+        }
+        assert!(tr.velocity_correction(12.0, 2.0, &SIGMA, 0.44).is_none());
+    }
+
+    #[test]
+    fn only_the_trailing_run_of_unfused_fixes_counts() {
+        // Unfused fixes drifting at 3 m/s, one fused fix, then ten unfused ones at rest: the
+        // slope is that of the last run alone.
+        let mut tr = InnovationTrend::default();
+        for k in 0..20 {
+            let t = 10.0 + 0.1 * f64::from(k);
+            let (r, fused) = match k {
+                0..9 => (Vector3::new(3.0 * t, 0.0, 0.0), false),
+                9 => (Vector3::zeros(), true),
+                _ => (Vector3::new(5.0, 0.0, 0.0), false),
+            };
+            tr.push(t, r, fused, 5.0);
+        }
+        let c = tr.velocity_correction(12.0, 2.0, &SIGMA, 0.44).unwrap();
+        assert!(c.dv.norm() < 1e-9, "{:?}", c.dv);
+    }
+
+    #[test]
+    fn the_variance_adds_the_accelerometer_bias_over_the_lever_to_the_reset() {
+        let tr = trend(Vector3::repeat, 20, false);
+        let with_ba = tr.velocity_correction(11.9, 2.0, &SIGMA, 0.44).unwrap();
+        let without = tr.velocity_correction(11.9, 2.0, &SIGMA, 0.0).unwrap();
+        // σ_ba0 times the time from the window's mean (10.95 s) to the reset.
+        assert!((with_ba.var - without.var - (0.44f64 * 0.95).powi(2)).abs() < 1e-9);
     }
 
     #[test]

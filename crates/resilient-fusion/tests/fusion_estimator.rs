@@ -38,17 +38,18 @@ struct Outcome {
     errors: Vec<(f64, f64, f64)>,
 }
 
-/// A GPS spoof: `offset` added to every fix with `t0 < t ≤ t1`.
+/// A GPS spoof: `offset + rate·(t − t0)` added to every fix with `t0 < t ≤ t1`.
 struct Spoof {
     t0: f64,
     t1: f64,
     offset: Vector3<f64>,
+    rate: Vector3<f64>,
 }
 
 /// Run the estimator over a 30 s square flight with a detector alarming in `windows`; with the
 /// Model II filter it must end within 2 m of the truth.
 fn excluded(cfg: &ResilientConfig, windows: &[(f64, f64)]) -> Result<Outcome> {
-    let out = fly(ModelKind::ModelII, cfg, windows, None)?;
+    let out = fly(ModelKind::ModelII, cfg, windows, &[])?;
     let err = out.errors.last().map_or(f64::INFINITY, |e| e.1);
     if err > 2.0 {
         return Err(FusionError::Config { field: "estimate", msg: format!("final error {err} m") });
@@ -58,7 +59,7 @@ fn excluded(cfg: &ResilientConfig, windows: &[(f64, f64)]) -> Result<Outcome> {
 
 /// Run the estimator of `model` over a 30 s square flight with a detector alarming in
 /// `windows` and the fixes spoofed by `spoof`.
-fn fly(model: ModelKind, cfg: &ResilientConfig, windows: &[(f64, f64)], spoof: Option<&Spoof>) -> Result<Outcome> {
+fn fly(model: ModelKind, cfg: &ResilientConfig, windows: &[(f64, f64)], spoofs: &[Spoof]) -> Result<Outcome> {
     let sim = SimConfig::default();
     let flight = simulate(&sim, &square(&ShapeConfig::default())?, 30.0, 4)?;
     let fc = FilterConfig::for_sim(model, &sim);
@@ -68,9 +69,9 @@ fn fly(model: ModelKind, cfg: &ResilientConfig, windows: &[(f64, f64)], spoof: O
     let mut errors = Vec::new();
     for imu in &s.imu {
         let t = imu.t;
-        let take_gps = s.gps.get(g).filter(|x| x.t == t).map(|x| match spoof {
-            Some(sp) if t > sp.t0 && t <= sp.t1 => x.p + sp.offset,
-            _ => x.p,
+        let take_gps = s.gps.get(g).filter(|x| x.t == t).map(|x| {
+            let spoofed = spoofs.iter().filter(|sp| t > sp.t0 && t <= sp.t1);
+            x.p + spoofed.map(|sp| sp.offset + sp.rate * (t - sp.t0)).sum::<Vector3<f64>>()
         });
         g += usize::from(take_gps.is_some());
         let take_att = s.attitude.get(a).filter(|x| x.t == t).map(|x| x.q);
@@ -149,27 +150,32 @@ fn a_rollback_into_an_earlier_exclusion_reopens_it_and_its_reset_clock() -> Resu
 
 #[test]
 fn a_reset_takes_the_velocity_the_unfused_fixes_reveal() -> Result<()> {
-    // Model I dead-reckons from 10.1 s; GPS is reset onto the fix 6 s later, and the detector,
-    // alarming until 28 s, goes unheeded. A 15 m burst 0.5 s after the reset is fused whole.
+    // Model I fuses a 1 m/s drift from 4 s to 10 s, which the velocity takes. The detector
+    // alarms from 10 s to 28 s: the estimate dead-reckons with the velocity error, and GPS is
+    // reset onto the fix 6 s later (16.1 s), the detector's alarms unheeded since. A 15 m burst
+    // 0.5 s after the reset is fused whole.
     let cfg = ResilientConfig { latency_s: 0.0, reset_after_s: Some(6.0), ..ResilientConfig::default() };
-    let burst = Spoof { t0: 16.6, t1: 18.6, offset: Vector3::new(15.0, -10.0, 0.0) };
-    let window = fly(ModelKind::ModelI, &cfg, &[(10.0, 28.0)], Some(&burst))?;
-    let forget = fly(
-        ModelKind::ModelI,
-        &ResilientConfig { reset_velocity_window_s: 0.0, ..cfg },
-        &[(10.0, 28.0)],
-        Some(&burst),
-    )?;
-    assert_eq!((window.n_resets, forget.n_resets), (1, 1));
+    let spoofs = [
+        Spoof { t0: 4.0, t1: 10.0, offset: Vector3::zeros(), rate: Vector3::new(1.0, 0.0, 0.0) },
+        Spoof { t0: 16.6, t1: 18.6, offset: Vector3::new(15.0, -10.0, 0.0), rate: Vector3::zeros() },
+    ];
+    let alarms = [(10.0, 28.0)];
+    let trend = fly(ModelKind::ModelI, &cfg, &alarms, &spoofs)?;
+    let forget = fly(ModelKind::ModelI, &ResilientConfig { reset_velocity_window_s: 0.0, ..cfg }, &alarms, &spoofs)?;
+    assert_eq!((trend.n_resets, forget.n_resets), (1, 1));
     let worst = |o: &Outcome, from: f64, to: f64| {
         o.errors.iter().filter(|e| e.0 > from && e.0 <= to).map(|e| e.2).fold(0.0, f64::max)
     };
-    // The velocity the trend gives is right after the reset, and holds three times better
-    // during the burst than a forgotten one, which takes the burst (9 against 26 m/s here).
-    let v_before = worst(&window, 16.1, 16.6);
-    assert!(v_before < 1.0, "velocity error after the reset {v_before} m/s");
-    let (v_w, v_f) = (worst(&window, 16.6, 22.0), worst(&forget, 16.6, 22.0));
-    assert!(v_w < 0.5 * v_f, "velocity error during the burst: trend {v_w}, forgotten {v_f} m/s");
+    // The reset removes most of the velocity error the dead reckoning carried; forgotten, the
+    // velocity takes the noise of the next fixes.
+    let before = worst(&trend, 15.5, 16.0);
+    let (after, after_forget) = (worst(&trend, 16.0, 16.6), worst(&forget, 16.0, 16.6));
+    assert!(before > 0.7, "velocity error before the reset {before} m/s");
+    assert!(after < 0.5 * before, "velocity error after the reset {after} m/s, before it {before} m/s");
+    assert!(after < after_forget, "after the reset: trend {after}, forgotten {after_forget} m/s");
+    // During the burst the velocity holds far better than a forgotten one, which takes it.
+    let (burst, burst_forget) = (worst(&trend, 16.6, 22.0), worst(&forget, 16.6, 22.0));
+    assert!(burst < 0.5 * burst_forget, "during the burst: trend {burst}, forgotten {burst_forget} m/s");
     Ok(())
 }
 
