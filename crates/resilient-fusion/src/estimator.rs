@@ -26,16 +26,16 @@
 //!    been excluded for [`ResilientConfig::reset_after_s`] is re-admitted with a position
 //!    reset onto the fix ([`Estimator::reset_onto_fix`]), so the estimate jumps onto whatever
 //!    the receiver reports. Its velocity, left uncorrected as long, takes the velocity error
-//!    that the trend of the last unfused fixes' innovations reveals
-//!    ([`crate::innovation_trend`], as EKF2 resets onto the receiver's velocity), or is forgotten
-//!    when a straight line does not explain those fixes; the accelerometer bias is forgotten.
-//!    The fixes that follow re-estimate what was forgotten. The reset is a decision to trust GPS: as
-//!    after step 4, the detector's alarms go unheeded until it clears once, and no rollback
-//!    rewinds past it, so an alarm stuck on the drift its own exclusion caused costs one
-//!    bounded exclusion, not one every `reset_after_s`. A rollback that rewinds to before the
-//!    re-admission ending an exclusion undoes every fix fused since and reopens that exclusion,
-//!    so its clock counts all the dead reckoning, however often an alarm returns within the
-//!    latency and look-back of each re-admission.
+//!    that the trend of the last unfused fixes' innovations reveals ([`crate::innovation_trend`],
+//!    as EKF2 resets onto the receiver's velocity), or is forgotten when a straight line does
+//!    not explain those fixes; the accelerometer bias is forgotten. The fixes that follow
+//!    re-estimate what was forgotten. The reset is a decision to trust GPS: as after step 4,
+//!    the detector's alarms go unheeded until it clears once, and no rollback rewinds past it,
+//!    so an alarm stuck on the drift its own exclusion caused costs one bounded exclusion, not
+//!    one every `reset_after_s`. A rollback that rewinds to before the re-admission ending an
+//!    exclusion undoes every fix fused since and reopens that exclusion, so its clock counts all
+//!    the dead reckoning, however often an alarm returns within the latency and look-back of
+//!    each re-admission.
 //!
 //! Positions in local ENU metres, times in seconds.
 
@@ -46,7 +46,7 @@ use ekf_residue::residues::{
     Estimator, FilterConfig, GPS_CHANNELS, GpsFusion, Measurements, StateEstimate, UpdateOutcome,
 };
 use ekf_residue::series::ResidueStep;
-use nalgebra::{DMatrix, DVector, Vector3};
+use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 use uav_dynamics::sensors::ImuSample;
 
@@ -424,22 +424,18 @@ impl<'d> ResilientEstimator<'d> {
         }
         let Some(est) = self.est.as_mut() else { return Ok(None) };
         let outcome = est.measure(meas, fusion)?;
-        self.record_gps_innovation(outcome.as_ref());
+        if let (Some(keep_s), Some(out)) = (self.trend_keep_s(), outcome.as_ref()) {
+            self.trend.record(out, keep_s);
+        }
         let gps_fused = outcome.as_ref().is_some_and(|o| o.gps_fused);
         Ok(Some(FusionStep { t, decision, gps_excluded: excluded, gps_fused, reset, outcome }))
     }
 
-    /// Keep the GPS innovation of a step for the velocity of a later reset (only when resets
-    /// happen and take a velocity).
-    fn record_gps_innovation(&mut self, outcome: Option<&UpdateOutcome>) {
-        if self.cfg.reset_after_s.is_none() || self.cfg.reset_velocity_window_s <= 0.0 {
-            return;
-        }
-        if let Some(out) = outcome
-            && let Some(r) = gps_innovation(out)
-        {
-            self.trend.push(out.t, r, out.gps_fused, self.cfg.reset_velocity_window_s);
-        }
+    /// How long the GPS innovations are kept for the velocity of a later reset; `None` when
+    /// resets do not happen or do not take a velocity.
+    fn trend_keep_s(&self) -> Option<f64> {
+        let w = self.cfg.reset_velocity_window_s;
+        (self.cfg.reset_after_s.is_some() && w > 0.0).then_some(w)
     }
 
     /// Whether GPS has been excluded for [`ResilientConfig::reset_after_s`] at `t`.
@@ -548,19 +544,19 @@ impl ResilientEstimator<'_> {
             self.excluded_since = Some(t0);
         }
         self.trend.truncate_from(m.t);
+        let keep_s = self.trend_keep_s();
         let mut est = (**ckpt).clone();
-        let mut replayed = Vec::new();
         for ev in self.buffer.iter_mut().skip(start) {
             match ev {
                 Event::Imu(s) => est.imu(s)?,
                 Event::Meas(m, ck) => {
                     **ck = est.clone();
-                    replayed.extend(est.measure(m, GpsFusion::Skip)?);
+                    let out = est.measure(m, GpsFusion::Skip)?;
+                    if let (Some(keep_s), Some(out)) = (keep_s, out.as_ref()) {
+                        self.trend.record(out, keep_s);
+                    }
                 }
             }
-        }
-        for out in &replayed {
-            self.record_gps_innovation(Some(out));
         }
         self.est = Some(est);
         self.n_rollbacks += 1;
@@ -600,15 +596,6 @@ pub fn select_channels<S: AsRef<str>>(out: &UpdateOutcome, channels: &[S]) -> Re
     let nis = r.dot(&chol.solve(&r));
     let s_row_major: Vec<f64> = (0..m).flat_map(|i| (0..m).map(move |j| (i, j))).map(|(i, j)| s[(i, j)]).collect();
     Ok((r.iter().copied().collect(), s_row_major, nis))
-}
-
-/// The GPS part (`gps_x gps_y gps_z`) of an innovation, if the group has a fix.
-fn gps_innovation(out: &UpdateOutcome) -> Option<Vector3<f64>> {
-    let mut r = Vector3::zeros();
-    for (i, c) in GPS_CHANNELS.iter().enumerate() {
-        r[i] = out.r_k[out.channels.iter().position(|k| k == c)?];
-    }
-    Some(r)
 }
 
 /// The simplest online detector: alarm when the step's NIS exceeds a chi-squared quantile.
