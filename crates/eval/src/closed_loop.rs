@@ -63,7 +63,7 @@ use crate::runner::{fit, read_json_cache, write_json_cache};
 use crate::table::to_csv;
 
 /// Bumped when the unit's computation changes, so cached units are recomputed.
-const UNIT_VERSION: u32 = 8;
+const UNIT_VERSION: u32 = 9;
 
 /// Seconds after an attack ends over which `max_error_after_m` is taken.
 pub const AFTER_WINDOW_S: f64 = 30.0;
@@ -815,6 +815,7 @@ fn fly(
             cfg.detector_channels = d.channels().to_vec();
             cfg.readmit_nis = Some(ResilientConfig::CHI2_3_99);
             cfg.rollback_lookback_s = setting.lookback_s;
+            cfg.rollback_onset_s = MAX_LOOKBACK_S;
             cfg.reset_after_s = setting.reset_after_s;
             let scored = TrailingMean::new(d.online_at(setting.threshold), setting.smooth, setting.threshold);
             Some(Box::new(Confirmed::new(Box::new(scored), setting.confirm)))

@@ -46,12 +46,13 @@ use ekf_residue::residues::{
     Estimator, FilterConfig, GPS_CHANNELS, GpsFusion, Measurements, StateEstimate, UpdateOutcome,
 };
 use ekf_residue::series::ResidueStep;
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Vector3};
 use serde::{Deserialize, Serialize};
 use uav_dynamics::sensors::ImuSample;
 
 use crate::error::{FusionError, Result};
 use crate::innovation_trend::InnovationTrend;
+use crate::onset;
 
 /// What happens to the GPS fixes fused during the decision latency once an alarm arrives.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -95,6 +96,12 @@ pub struct ResilientConfig {
     /// every latency, 0 included, with [`Rollback::ReplayWithoutGps`].
     #[serde(default)]
     pub rollback_lookback_s: f64,
+    /// How far before the alarmed residue step the rollback looks for the onset of a spoof the
+    /// filter fused ([`crate::onset`]), seconds: when the whitened GPS innovations of that span
+    /// show a mean shift (likelihood ratio above the χ²₃ 0.999 quantile), the rollback rewinds
+    /// to its first fix if that lies before `rollback_lookback_s`. Default 0: no search.
+    #[serde(default)]
+    pub rollback_onset_s: f64,
     /// Exclusion time after which GPS is re-admitted with a reset onto the fix (module doc,
     /// step 5: the position moves onto it, the velocity takes the fixes' trend, the accelerometer
     /// bias is forgotten), seconds. Default `None`: exclusion lasts while alarms do. PX4
@@ -125,6 +132,7 @@ impl Default for ResilientConfig {
             detector_channels: GPS_CHANNELS.iter().map(|s| (*s).to_string()).collect(),
             rollback: Rollback::default(),
             rollback_lookback_s: 0.0,
+            rollback_onset_s: 0.0,
             reset_after_s: None,
             reset_velocity_window_s: default_reset_velocity_window_s(),
             readmit_nis: None,
@@ -151,6 +159,7 @@ impl ResilientConfig {
             ("hold_s", self.hold_s),
             ("readmit_inflation_m2", self.readmit_inflation_m2),
             ("rollback_lookback_s", self.rollback_lookback_s),
+            ("rollback_onset_s", self.rollback_onset_s),
             ("reset_velocity_window_s", self.reset_velocity_window_s),
         ] {
             if !(v.is_finite() && v >= 0.0) {
@@ -187,8 +196,9 @@ struct Pending {
 enum Event {
     /// An IMU sample fed with [`Estimator::imu`].
     Imu(ImuSample),
-    /// A measurement group, with the filter state just before it was processed.
-    Meas(Measurements, Box<Estimator>),
+    /// A measurement group, with the filter state just before it was processed and, once it
+    /// was, its whitened GPS innovation (for [`crate::onset`]).
+    Meas(Measurements, Box<Estimator>, Option<Vector3<f64>>),
 }
 
 /// What happened at one measurement time.
@@ -319,7 +329,7 @@ impl<'d> ResilientEstimator<'d> {
     fn buffering(&self) -> bool {
         self.detector.is_some()
             && self.cfg.rollback == Rollback::ReplayWithoutGps
-            && self.cfg.latency_s + self.cfg.rollback_lookback_s > 0.0
+            && self.cfg.latency_s + self.cfg.rollback_lookback_s.max(self.cfg.rollback_onset_s) > 0.0
     }
 
     /// Residue times of every alarm the detector raised.
@@ -409,8 +419,8 @@ impl<'d> ResilientEstimator<'d> {
         let fusion = if excluded { GpsFusion::Skip } else { GpsFusion::Fuse };
         if buffering {
             // Keep what a rollback to this step needs: the prior state and the measurements.
-            let horizon = t - self.cfg.latency_s - self.cfg.rollback_lookback_s - 1.0;
-            while let Some(Event::Imu(ImuSample { t: t_old, .. }) | Event::Meas(Measurements { t: t_old, .. }, _)) =
+            let horizon = t - self.cfg.latency_s - self.cfg.rollback_lookback_s.max(self.cfg.rollback_onset_s) - 1.0;
+            while let Some(Event::Imu(ImuSample { t: t_old, .. }) | Event::Meas(Measurements { t: t_old, .. }, ..)) =
                 self.buffer.front()
             {
                 if *t_old >= horizon {
@@ -419,13 +429,16 @@ impl<'d> ResilientEstimator<'d> {
                 self.buffer.pop_front();
             }
             if let Some(est) = self.est.as_ref() {
-                self.buffer.push_back(Event::Meas(*meas, Box::new(est.clone())));
+                self.buffer.push_back(Event::Meas(*meas, Box::new(est.clone()), None));
             }
         }
         let Some(est) = self.est.as_mut() else { return Ok(None) };
         let outcome = est.measure(meas, fusion)?;
         if let (Some(keep_s), Some(out)) = (self.trend_keep_s(), outcome.as_ref()) {
             self.trend.record(out, keep_s);
+        }
+        if buffering && let Some(Event::Meas(_, _, u)) = self.buffer.back_mut() {
+            *u = outcome.as_ref().and_then(whitened_gps);
         }
         let gps_fused = outcome.as_ref().is_some_and(|o| o.gps_fused);
         Ok(Some(FusionStep { t, decision, gps_excluded: excluded, gps_fused, reset, outcome }))
@@ -531,11 +544,25 @@ impl ResilientEstimator<'_> {
     /// without ever reaching the reset that bounds it. An exclusion ended by a reset stays
     /// closed: the buffer starts at the reset, and replaying skips its fix but keeps the reset.
     fn rollback_to(&mut self, t_residue: f64) -> Result<()> {
-        let from = t_residue - self.cfg.rollback_lookback_s - 1e-9;
-        let Some(start) = self.buffer.iter().position(|e| matches!(e, Event::Meas(m, _) if m.t >= from)) else {
+        let mut from = t_residue - self.cfg.rollback_lookback_s - 1e-9;
+        if self.cfg.rollback_onset_s > 0.0 {
+            let since = t_residue - self.cfg.rollback_onset_s - 1e-9;
+            let u: Vec<(f64, Vector3<f64>)> = self
+                .buffer
+                .iter()
+                .filter_map(|e| match e {
+                    Event::Meas(m, _, Some(u)) if m.t >= since && m.t <= t_residue + 1e-9 => Some((m.t, *u)),
+                    _ => None,
+                })
+                .collect();
+            if let Some(t_onset) = onset::mean_shift_onset(&u, NisGate::CHI2_3_999) {
+                from = from.min(t_onset - 1e-9);
+            }
+        }
+        let Some(start) = self.buffer.iter().position(|e| matches!(e, Event::Meas(m, ..) if m.t >= from)) else {
             return Ok(());
         };
-        let Some(Event::Meas(m, ckpt)) = self.buffer.get(start) else { return Ok(()) };
+        let Some(Event::Meas(m, ckpt, _)) = self.buffer.get(start) else { return Ok(()) };
         while let Some(&(t0, t1)) = self.excluded_intervals.last()
             && t1 >= m.t - 1e-9
             && t1 > self.last_reset + 1e-9
@@ -549,12 +576,13 @@ impl ResilientEstimator<'_> {
         for ev in self.buffer.iter_mut().skip(start) {
             match ev {
                 Event::Imu(s) => est.imu(s)?,
-                Event::Meas(m, ck) => {
+                Event::Meas(m, ck, u) => {
                     **ck = est.clone();
                     let out = est.measure(m, GpsFusion::Skip)?;
                     if let (Some(keep_s), Some(out)) = (keep_s, out.as_ref()) {
                         self.trend.record(out, keep_s);
                     }
+                    *u = out.as_ref().and_then(whitened_gps);
                 }
             }
         }
@@ -562,6 +590,12 @@ impl ResilientEstimator<'_> {
         self.n_rollbacks += 1;
         Ok(())
     }
+}
+
+/// The whitened GPS innovation of an update ([`onset::whiten`]); `None` without a GPS fix.
+fn whitened_gps(out: &UpdateOutcome) -> Option<Vector3<f64>> {
+    let (r, s, _) = select_channels(out, &GPS_CHANNELS).ok()?;
+    onset::whiten(&r, &s)
 }
 
 /// Pick `channels` (in that order) from an innovation: the sub-vector of `r_k`, the sub-block

@@ -30,6 +30,7 @@ pub mod error;
 pub mod estimator;
 pub mod gates;
 pub mod innovation_trend;
+pub mod onset;
 pub mod recorded;
 pub mod scenario;
 

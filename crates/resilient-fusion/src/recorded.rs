@@ -302,6 +302,29 @@ mod tests {
     }
 
     #[test]
+    fn a_rollback_to_the_onset_undoes_a_drift_fused_before_the_alarm() {
+        // A 1 m/s drift from 5 s, fused until a late alarm at 8 s (held to 20 s): rewinding to
+        // the alarmed fix leaves the 3 s of drift the estimate followed; rewinding to the onset
+        // the innovations date undoes it.
+        let (flight, fc) = square_flight(ModelKind::ModelII);
+        let plan = AttackPlan::from_intervals(vec![AttackInterval {
+            t0: 5.0,
+            t1: 20.0,
+            shape: AttackShape::Ramp { offset_end: Vector3::new(15.0, 0.0, 0.0) },
+        }])
+        .unwrap();
+        let fixed = ResilientConfig { latency_s: 0.0, ..ResilientConfig::default() };
+        let onset = ResilientConfig { rollback_onset_s: 5.0, ..fixed.clone() };
+        let err_at = |cfg: &ResilientConfig, t: f64| {
+            let tr = fly_recorded(&flight, &plan, &fc, cfg, Some(Box::new(StuckIn(vec![(8.0, 20.0)])))).unwrap();
+            tr.steps.iter().find(|s| (s.t - t).abs() < 1e-6).map_or(f64::NAN, |s| s.error_m)
+        };
+        let (late, undone) = (err_at(&fixed, 8.5), err_at(&onset, 8.5));
+        assert!(late > 1.0, "the fused drift stays in the estimate: {late} m");
+        assert!(undone < 0.5 * late, "rewound to the onset: {undone} m against {late} m");
+    }
+
+    #[test]
     fn a_reset_re_estimates_the_velocity_a_fused_burst_corrupted() {
         // A 10 m burst over 4–5 s is fused (missed); an alarm raised as it ends and held
         // until 12 s is ended by a 3 s bound at 8 s; a second false alarm over 12.5–14 s holds
