@@ -240,6 +240,32 @@ fn fuse_flies_a_flight_folder_in_the_loop() {
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("reset_velocity_window_s"), "{}", stderr(&o));
     assert!(!bad.exists());
+    // And a negative span for the onset of a rollback.
+    let o = quadformer(&["fuse", "--in", s(&fixture), "--detector", "nis", "--onset-s=-1", "--out", s(&bad)]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("rollback_onset_s"), "{}", stderr(&o));
+    assert!(!bad.exists());
+    // With the onset search the χ² detector still excludes GPS on most attacked fixes, and the
+    // report names the span.
+    let onset = dir.path().join("onset");
+    let o = quadformer(&[
+        "fuse",
+        "--in",
+        s(&fixture),
+        "--detector",
+        "chi2",
+        "--latency-s",
+        "0",
+        "--onset-s",
+        "5",
+        "--out",
+        s(&onset),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::read_to_string(onset.join("loop.md")).unwrap().contains("--onset-s 5 "));
+    let rows = loop_rows(&onset.join("loop.csv"));
+    let caught = rows.iter().filter(|r| r.1 == 1 && r.3 == 1).count();
+    assert!(caught * 2 > attacked, "onset: GPS excluded on {caught} of {attacked} attacked fixes");
     // A confirmation of zero steps is refused by name.
     let o = quadformer(&["fuse", "--in", s(&fixture), "--detector", "nis", "--confirm", "0", "--out", s(&bad)]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));

@@ -12,6 +12,10 @@
 //!    (`Admitted → Excluded`); GPS is re-admitted once no alarm has arrived for `hold_s`
 //!    (hysteresis), and on re-admission the position covariance is inflated by
 //!    `readmit_inflation_m2` so the first fixes pull the VO-drifted estimate back quickly.
+//!    An alarm that opens an exclusion rewinds the filter ([`Rollback::ReplayWithoutGps`]) to
+//!    before the alarmed step, or [`ResilientConfig::rollback_lookback_s`] earlier, or to the
+//!    onset of a spoof the GPS innovations of the last [`ResilientConfig::rollback_onset_s`]
+//!    date ([`crate::onset`]), whichever is earliest, and replays without GPS.
 //! 3. The filter updates with VO and, unless excluded, the GPS fix (alg:alg3 lines 2–4). While
 //!    excluded the GPS innovation is still computed against the prior, so the detector keeps
 //!    watching the stream.
@@ -34,7 +38,7 @@
 //!    so an alarm stuck on the drift its own exclusion caused costs one bounded exclusion, not
 //!    one every `reset_after_s`. A rollback that rewinds to before the re-admission ending an
 //!    exclusion undoes every fix fused since and reopens that exclusion, so its clock counts all
-//!    the dead reckoning, however often an alarm returns within the latency and look-back of
+//!    the dead reckoning, however often an alarm returns within the latency and rewind of
 //!    each re-admission.
 //!
 //! Positions in local ENU metres, times in seconds.
@@ -98,8 +102,10 @@ pub struct ResilientConfig {
     pub rollback_lookback_s: f64,
     /// How far before the alarmed residue step the rollback looks for the onset of a spoof the
     /// filter fused ([`crate::onset`]), seconds: when the whitened GPS innovations of that span
-    /// show a mean shift (likelihood ratio above the χ²₃ 0.999 quantile), the rollback rewinds
-    /// to its first fix if that lies before `rollback_lookback_s`. Default 0: no search.
+    /// show a mean shift (the largest log-likelihood ratio above the χ²₃ 0.999 quantile, which
+    /// about 1 % of clean 5 s spans of Gaussian innovations pass), the rollback rewinds to its
+    /// first fix if that lies before `rollback_lookback_s`. The span's fixes are searched
+    /// whether or not they were fused. Default 0: no search.
     #[serde(default)]
     pub rollback_onset_s: f64,
     /// Exclusion time after which GPS is re-admitted with a reset onto the fix (module doc,
@@ -533,9 +539,12 @@ impl<'d> ResilientEstimator<'d> {
 
 impl ResilientEstimator<'_> {
     /// Rewind to the state before the first buffered measurement group at or after
-    /// `t_residue − rollback_lookback_s` and replay every buffered input since, fusing no GPS
-    /// (the fixes from `t_residue` on are the alarmed ones, those of the look-back the ones the
-    /// detection delay let through).
+    /// `t_residue − rollback_lookback_s`, or at the onset [`crate::onset`] dates among the
+    /// buffered fixes of the last [`ResilientConfig::rollback_onset_s`] up to `t_residue` when
+    /// that is earlier, and replay every buffered input since, fusing no GPS (the fixes from
+    /// `t_residue` on are the alarmed ones, those before it the ones the detection delay let
+    /// through). The alarmed fix is among those searched only when its decision arrives after
+    /// it was processed (latency above 0); at latency 0 the search ends at the fix before.
     ///
     /// A rewind to a step at or before the re-admission that ended an earlier exclusion undoes
     /// every fix fused since, so the exclusion is reopened: it runs on from its own start, and

@@ -5,14 +5,18 @@
 //! A spoof the filter fuses for a while, a drift most of all, leaves its innovations with a mean
 //! the clean ones do not have: the estimate lags the growing offset. For the GPS innovations
 //! whitened by their own covariance, `u_i = L_i⁻¹ r_i` with `S_i = L_i L_iᵀ` (standard normal on
-//! clean fixes), the generalised likelihood ratio of a constant mean shift from fix `j` to the
-//! newest fix `k` is
+//! clean fixes), twice the log of the generalised likelihood ratio of a constant mean shift from
+//! fix `j` to the newest fix searched, `k`, is
 //!
 //! `Λ(j) = ‖Σ_{i=j}^{k} u_i‖² / (k − j + 1)`,
 //!
 //! χ²₃-distributed on clean fixes for each `j` (Basseville and Nikiforov, *Detection of Abrupt
 //! Changes*, 1993, sec. 2.4: the change time is the maximiser of the likelihood ratio). The onset
-//! is the `j` that maximises `Λ`, taken only when its `Λ` passes a threshold.
+//! is the `j` that maximises `Λ`, taken only when its `Λ` passes a threshold. The threshold
+//! applies to the largest of the span's `Λ(j)`: over 50 clean fixes (5 s at 10 Hz) of Gaussian
+//! innovations the largest passes the χ²₃ 0.999 quantile in about 1 % of spans, not 0.1 %.
+//! The whitening assumes a shift constant in `r`; where `S_i` grows along the span (a replayed
+//! exclusion) the test weighs the later fixes less.
 
 use nalgebra::{Matrix3, Vector3};
 
