@@ -166,6 +166,17 @@ fn loop_rows(path: &Path) -> Vec<(f64, u8, u8, u8)> {
         .collect()
 }
 
+/// Fly the fixture folder `fixture` with `detector` at latency 0 and the `extra` arguments into
+/// `out`: the report and the per-fix rows.
+fn fly_fixture(fixture: &Path, detector: &str, extra: &[&str], out: &Path) -> (String, Vec<(f64, u8, u8, u8)>) {
+    let mut args = vec!["fuse", "--in", s(fixture), "--detector", detector, "--latency-s", "0"];
+    args.extend_from_slice(extra);
+    args.extend(["--out", s(out)]);
+    let o = quadformer(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    (std::fs::read_to_string(out.join("loop.md")).unwrap(), loop_rows(&out.join("loop.csv")))
+}
+
 /// `fuse --in`: a flight folder flown in the loop. The fixture's recorded attack is re-applied
 /// online, so the labels of loop.csv are attack.csv's, and a χ² detector fitted on the quick
 /// cell excludes GPS on most attacked fixes.
@@ -174,45 +185,23 @@ fn fuse_flies_a_flight_folder_in_the_loop() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("loop");
     let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/flight-60s");
-    let o = quadformer(&["fuse", "--in", s(&fixture), "--detector", "chi2", "--latency-s", "0", "--out", s(&out)]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let rows = loop_rows(&out.join("loop.csv"));
+    let (md, rows) = fly_fixture(&fixture, "chi2", &[], &out);
     let attack = eval::io::read_attack(&fixture.join("attack.csv")).unwrap();
     let attacked = rows.iter().filter(|r| r.1 == 1).count();
     assert_eq!(attacked, attack.iter().filter(|a| a.label).count(), "every recorded attack re-applied");
     let caught = rows.iter().filter(|r| r.1 == 1 && r.3 == 1).count();
     assert!(caught * 2 > attacked, "GPS excluded on {caught} of {attacked} attacked fixes");
-    let md = std::fs::read_to_string(out.join("loop.md")).unwrap();
     assert!(md.contains("| precision / recall / F1 |"), "{md}");
     // A trailing mean of three scores still excludes GPS on most attacked fixes, and the
     // report names it.
-    let smoothed = dir.path().join("smoothed");
-    let o = quadformer(&[
-        "fuse",
-        "--in",
-        s(&fixture),
-        "--detector",
-        "chi2",
-        "--latency-s",
-        "0",
-        "--smooth",
-        "2",
-        "--out",
-        s(&smoothed),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let md = std::fs::read_to_string(smoothed.join("loop.md")).unwrap();
+    let (md, rows) = fly_fixture(&fixture, "chi2", &["--smooth", "2"], &dir.path().join("smoothed"));
     assert!(md.contains("--confirm 1 --smooth 2`"), "{md}");
-    let rows = loop_rows(&smoothed.join("loop.csv"));
     let attacked = rows.iter().filter(|r| r.1 == 1).count();
     let caught = rows.iter().filter(|r| r.1 == 1 && r.3 == 1).count();
     assert!(caught * 2 > attacked, "smoothed: GPS excluded on {caught} of {attacked} attacked fixes");
     // The GLR drift test, fitted on the quick cell, flies the same folder and excludes GPS on
     // most attacked fixes too.
-    let glr = dir.path().join("glr");
-    let o = quadformer(&["fuse", "--in", s(&fixture), "--detector", "glr", "--latency-s", "0", "--out", s(&glr)]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let rows = loop_rows(&glr.join("loop.csv"));
+    let (_, rows) = fly_fixture(&fixture, "glr", &[], &dir.path().join("glr"));
     let caught = rows.iter().filter(|r| r.1 == 1 && r.3 == 1).count();
     assert!(caught * 2 > attacked, "GLR: GPS excluded on {caught} of {attacked} attacked fixes");
     // A scenario and a folder at once is refused.
@@ -247,23 +236,8 @@ fn fuse_flies_a_flight_folder_in_the_loop() {
     assert!(!bad.exists());
     // With the onset search the χ² detector still excludes GPS on most attacked fixes, and the
     // report names the span.
-    let onset = dir.path().join("onset");
-    let o = quadformer(&[
-        "fuse",
-        "--in",
-        s(&fixture),
-        "--detector",
-        "chi2",
-        "--latency-s",
-        "0",
-        "--onset-s",
-        "5",
-        "--out",
-        s(&onset),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(std::fs::read_to_string(onset.join("loop.md")).unwrap().contains("--onset-s 5 "));
-    let rows = loop_rows(&onset.join("loop.csv"));
+    let (md, rows) = fly_fixture(&fixture, "chi2", &["--onset-s", "5"], &dir.path().join("onset"));
+    assert!(md.contains("--onset-s 5 "), "{md}");
     let caught = rows.iter().filter(|r| r.1 == 1 && r.3 == 1).count();
     assert!(caught * 2 > attacked, "onset: GPS excluded on {caught} of {attacked} attacked fixes");
     // A confirmation of zero steps is refused by name.

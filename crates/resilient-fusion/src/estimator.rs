@@ -50,7 +50,7 @@ use ekf_residue::residues::{
     Estimator, FilterConfig, GPS_CHANNELS, GpsFusion, Measurements, StateEstimate, UpdateOutcome,
 };
 use ekf_residue::series::ResidueStep;
-use nalgebra::{DMatrix, DVector, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 use uav_dynamics::sensors::ImuSample;
 
@@ -440,11 +440,9 @@ impl<'d> ResilientEstimator<'d> {
         }
         let Some(est) = self.est.as_mut() else { return Ok(None) };
         let outcome = est.measure(meas, fusion)?;
-        if let (Some(keep_s), Some(out)) = (self.trend_keep_s(), outcome.as_ref()) {
-            self.trend.record(out, keep_s);
-        }
-        if buffering && let Some(Event::Meas(_, _, u)) = self.buffer.back_mut() {
-            *u = outcome.as_ref().and_then(whitened_gps);
+        let u = outcome.as_ref().and_then(|out| self.note_gps(out));
+        if buffering && let Some(Event::Meas(_, _, slot)) = self.buffer.back_mut() {
+            *slot = u;
         }
         let gps_fused = outcome.as_ref().is_some_and(|o| o.gps_fused);
         Ok(Some(FusionStep { t, decision, gps_excluded: excluded, gps_fused, reset, outcome }))
@@ -455,6 +453,17 @@ impl<'d> ResilientEstimator<'d> {
     fn trend_keep_s(&self) -> Option<f64> {
         let w = self.cfg.reset_velocity_window_s;
         (self.cfg.reset_after_s.is_some() && w > 0.0).then_some(w)
+    }
+
+    /// Keep what later resets and rollbacks read of a group's GPS innovation: the innovation
+    /// for the velocity trend, and its whitened form (returned, for the rollback buffer) when
+    /// rollbacks search an onset. `None` for a group without a fix.
+    fn note_gps(&mut self, out: &UpdateOutcome) -> Option<Vector3<f64>> {
+        let (r, s) = gps_innovation(out)?;
+        if let Some(keep_s) = self.trend_keep_s() {
+            self.trend.push(out.t, r, out.gps_fused, keep_s);
+        }
+        (self.cfg.rollback_onset_s > 0.0).then(|| onset::whiten(&r, &s)).flatten()
     }
 
     /// Whether GPS has been excluded for [`ResilientConfig::reset_after_s`] at `t`.
@@ -580,31 +589,41 @@ impl ResilientEstimator<'_> {
             self.excluded_since = Some(t0);
         }
         self.trend.truncate_from(m.t);
-        let keep_s = self.trend_keep_s();
-        let mut est = (**ckpt).clone();
-        for ev in self.buffer.iter_mut().skip(start) {
+        let est = (**ckpt).clone();
+        // The buffer is taken out while it is replayed, so each replayed group's innovation can
+        // be noted on `self`; it is put back whatever the replay gives.
+        let mut buffer = std::mem::take(&mut self.buffer);
+        let replayed = self.replay(&mut buffer, start, est);
+        self.buffer = buffer;
+        self.est = Some(replayed?);
+        self.n_rollbacks += 1;
+        Ok(())
+    }
+
+    /// Replay `buffer` from index `start` onto `est` without GPS, refreshing each group's
+    /// checkpoint and noted innovation ([`Self::note_gps`]).
+    fn replay(&mut self, buffer: &mut VecDeque<Event>, start: usize, mut est: Estimator) -> Result<Estimator> {
+        for ev in buffer.iter_mut().skip(start) {
             match ev {
                 Event::Imu(s) => est.imu(s)?,
                 Event::Meas(m, ck, u) => {
                     **ck = est.clone();
-                    let out = est.measure(m, GpsFusion::Skip)?;
-                    if let (Some(keep_s), Some(out)) = (keep_s, out.as_ref()) {
-                        self.trend.record(out, keep_s);
-                    }
-                    *u = out.as_ref().and_then(whitened_gps);
+                    *u = est.measure(m, GpsFusion::Skip)?.and_then(|out| self.note_gps(&out));
                 }
             }
         }
-        self.est = Some(est);
-        self.n_rollbacks += 1;
-        Ok(())
+        Ok(est)
     }
 }
 
-/// The whitened GPS innovation of an update ([`onset::whiten`]); `None` without a GPS fix.
-fn whitened_gps(out: &UpdateOutcome) -> Option<Vector3<f64>> {
-    let (r, s, _) = select_channels(out, &GPS_CHANNELS).ok()?;
-    onset::whiten(&r, &s)
+/// The GPS part (`gps_x gps_y gps_z`) of an innovation and its covariance block, if the group
+/// has a fix.
+fn gps_innovation(out: &UpdateOutcome) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+    let mut idx = [0; 3];
+    for (i, c) in GPS_CHANNELS.iter().enumerate() {
+        idx[i] = out.channels.iter().position(|k| k == c)?;
+    }
+    Some((Vector3::from_fn(|i, _| out.r_k[idx[i]]), Matrix3::from_fn(|i, j| out.s_k[(idx[i], idx[j])])))
 }
 
 /// Pick `channels` (in that order) from an innovation: the sub-vector of `r_k`, the sub-block

@@ -24,7 +24,6 @@
 use std::collections::VecDeque;
 
 use ekf_residue::chi2::chi2_quantile;
-use ekf_residue::residues::{GPS_CHANNELS, UpdateOutcome};
 use nalgebra::Vector3;
 
 /// Fewest unfused fixes a slope is fitted on.
@@ -53,16 +52,6 @@ impl InnovationTrend {
         while self.samples.front().is_some_and(|&(t0, ..)| t0 < t - keep_s - 1e-9) {
             self.samples.pop_front();
         }
-    }
-
-    /// Record the GPS innovation of a measurement group (nothing for a group without a fix).
-    pub fn record(&mut self, out: &UpdateOutcome, keep_s: f64) {
-        let mut r = Vector3::zeros();
-        for (i, c) in GPS_CHANNELS.iter().enumerate() {
-            let Some(k) = out.channels.iter().position(|k| k == c) else { return };
-            r[i] = out.r_k[k];
-        }
-        self.push(out.t, r, out.gps_fused, keep_s);
     }
 
     /// Forget the samples at or after `t` (a rollback replays them).

@@ -20,15 +20,14 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-/// The whitened GPS innovation `L⁻¹ r` of one fix, for innovation `r` with covariance `s`
-/// (3 × 3, row-major); `None` when `s` is not positive definite or anything is not finite.
+/// The whitened GPS innovation `L⁻¹ r` of one fix, for innovation `r` with covariance
+/// `s = L Lᵀ`; `None` when `s` is not positive definite or anything is not finite.
 #[must_use]
-pub fn whiten(r: &[f64], s: &[f64]) -> Option<Vector3<f64>> {
-    if r.len() != 3 || s.len() != 9 || !r.iter().chain(s).all(|v| v.is_finite()) {
+pub fn whiten(r: &Vector3<f64>, s: &Matrix3<f64>) -> Option<Vector3<f64>> {
+    if !r.iter().chain(s.iter()).all(|v| v.is_finite()) {
         return None;
     }
-    let l = Matrix3::from_row_slice(s).cholesky()?.l();
-    l.solve_lower_triangular(&Vector3::from_column_slice(r))
+    s.cholesky()?.l().solve_lower_triangular(r)
 }
 
 /// The time of the fix from which the mean shift of the whitened innovations `u` (time order,
@@ -95,16 +94,15 @@ mod tests {
     #[test]
     fn whitening_uses_the_cholesky_factor() {
         // S = diag(4, 1, 9): u = r / σ per axis.
-        let u = whiten(&[2.0, -1.0, 6.0], &[4.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 9.0]).unwrap();
+        let u = whiten(&Vector3::new(2.0, -1.0, 6.0), &Matrix3::from_diagonal(&Vector3::new(4.0, 1.0, 9.0))).unwrap();
         assert!((u - Vector3::new(1.0, -1.0, 2.0)).norm() < 1e-12);
         // Correlated: uᵀu is the NIS rᵀ S⁻¹ r.
-        let s = [2.0, 0.5, 0.1, 0.5, 1.0, 0.2, 0.1, 0.2, 3.0];
-        let r = [0.3, -1.2, 0.7];
+        let s = Matrix3::new(2.0, 0.5, 0.1, 0.5, 1.0, 0.2, 0.1, 0.2, 3.0);
+        let r = Vector3::new(0.3, -1.2, 0.7);
         let u = whiten(&r, &s).unwrap();
-        let nis = Vector3::from_column_slice(&r)
-            .dot(&(Matrix3::from_row_slice(&s).try_inverse().unwrap() * Vector3::from_column_slice(&r)));
+        let nis = r.dot(&(s.try_inverse().unwrap() * r));
         assert!((u.norm_squared() - nis).abs() < 1e-12);
-        assert!(whiten(&r, &[1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0]).is_none());
-        assert!(whiten(&[f64::NAN, 0.0, 0.0], &s).is_none());
+        assert!(whiten(&r, &Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, 1.0))).is_none());
+        assert!(whiten(&Vector3::new(f64::NAN, 0.0, 0.0), &s).is_none());
     }
 }
